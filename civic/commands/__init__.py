@@ -1,0 +1,1 @@
+"""Subcommands of the `civic` CLI, one module each (see civic/cli.py)."""

@@ -1,0 +1,148 @@
+"""Table entries: the one format `civic train` writes and the switch (model or P4) runs.
+
+See docs/pipeline.md section 6 for the JSON layout.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from civic.config import (Monitor, check_int, check_monitor_list, check_range, parse_common,
+                          parse_monitor)
+from civic.errors import CivicError
+from civic.wire import CLASS_CODES
+
+FORMAT = "civic-entries/1"
+ESTIMATORS = ("endpoint", "lsq")
+SLOPE_MIN, SLOPE_MAX = -(2**31), 2**31 - 1
+LEVEL_MAX = 0xFFFF
+CLASS_COLUMNS = ("slope_lo", "slope_hi", "level_lo", "level_hi", "cls")
+
+
+@dataclass
+class MonitorEntries(Monitor):
+    """A monitor with its estimator and class table (rows of CLASS_COLUMNS)."""
+
+    estimator: str = "lsq"
+    default_class: int = CLASS_CODES["error"]
+    classes: np.ndarray = field(default_factory=lambda: np.zeros((0, 5), dtype=np.int64))
+
+    @property
+    def ring_len(self) -> int:
+        """lsq needs the value leaving the W-window; endpoint needs the window's oldest."""
+        return self.window if self.estimator == "lsq" else self.window - 1
+
+    @property
+    def slope_scale(self) -> float:
+        """Raw slope -> mL/s (10 samples per second)."""
+        w = self.window
+        per_sample = 6.0 / (w * (w * w - 1)) if self.estimator == "lsq" else 1.0 / (w - 1)
+        return per_sample * 10.0
+
+    def to_json(self) -> dict:
+        return {
+            "name": self.name, "signal": self.signal, "window": self.window,
+            "estimator": self.estimator,
+            "precondition": {k: list(v) for k, v in self.precondition.items()},
+            "slope_scale_ml_per_s": self.slope_scale,
+            "default_class": self.default_class,
+            "classes": [{"slope": [int(r[0]), int(r[1])], "level": [int(r[2]), int(r[3])], "class": int(r[4])}
+                        for r in self.classes],
+        }
+
+
+@dataclass
+class Entries:
+    monitors: list[MonitorEntries]
+    udp_port: int = 50000
+    plant_prefix: str = "10.0.0.0/24"
+    forwarding: dict[int, int] = field(default_factory=lambda: {1: 2, 2: 1})
+    training: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {
+            "format": FORMAT, "udp_port": self.udp_port, "plant_prefix": self.plant_prefix,
+            "forwarding": {str(k): v for k, v in self.forwarding.items()},
+            "monitors": [m.to_json() for m in self.monitors],
+            "training": self.training,
+        }
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_json(), indent=1) + "\n")
+
+
+def check_no_overlap(classes: np.ndarray, what: str) -> None:
+    """Entries of one table must not overlap: a packet matches at most one."""
+    for i in range(len(classes)):
+        a = classes[i]
+        rest = classes[i + 1:]
+        hit = ((rest[:, 0] <= a[1]) & (a[0] <= rest[:, 1]) & (rest[:, 2] <= a[3]) & (a[2] <= rest[:, 3]))
+        if np.any(hit):
+            j = i + 1 + int(np.flatnonzero(hit)[0])
+            raise CivicError(f"{what}: class entries {i} and {j} overlap")
+
+
+def parse_monitor_entries(raw, what: str) -> MonitorEntries:
+    base = parse_monitor(raw, what)
+    est = raw.get("estimator", "lsq")
+    if est not in ESTIMATORS:
+        raise CivicError(f"{what}.estimator: {est!r} is not one of {', '.join(ESTIMATORS)}")
+    default = check_int(raw.get("default_class", 3), f"{what}.default_class", 1, 3)
+    rows = raw.get("classes")
+    if not isinstance(rows, list):
+        raise CivicError(f"{what}: missing key 'classes' (a list)")
+    table = np.zeros((len(rows), 5), dtype=np.int64)
+    for i, row in enumerate(rows):
+        w = f"{what}.classes[{i}]"
+        if not isinstance(row, dict):
+            raise CivicError(f"{w}: expected an object")
+        for key in ("slope", "class"):
+            if key not in row:
+                raise CivicError(f"{w}: missing key '{key}'")
+        table[i, 0:2] = check_range(row["slope"], f"{w}.slope", SLOPE_MIN, SLOPE_MAX)
+        table[i, 2:4] = check_range(row.get("level", [0, LEVEL_MAX]), f"{w}.level", 0, LEVEL_MAX)
+        table[i, 4] = check_int(row["class"], f"{w}.class", 1, 3)
+    check_no_overlap(table, what)
+    return MonitorEntries(name=base.name, signal=base.signal, window=base.window,
+                          precondition=base.precondition, estimator=est,
+                          default_class=default, classes=table)
+
+
+def parse_entries(raw, what: str) -> Entries:
+    if not isinstance(raw, dict):
+        raise CivicError(f"{what}: expected a JSON object")
+    if raw.get("format") != FORMAT:
+        raise CivicError(f"{what}: format: expected {FORMAT!r}, got {raw.get('format')!r}")
+    port, prefix = parse_common(raw, what)
+    items = raw.get("monitors")
+    if not isinstance(items, list):
+        raise CivicError(f"{what}: missing key 'monitors' (a list)")
+    monitors = [parse_monitor_entries(m, f"{what}: monitors[{i}]") for i, m in enumerate(items)]
+    check_monitor_list(monitors, what)
+    fwd_raw = raw.get("forwarding", {"1": 2, "2": 1})
+    if not isinstance(fwd_raw, dict):
+        raise CivicError(f"{what}: forwarding: expected an object port -> port")
+    forwarding = {}
+    for k, v in fwd_raw.items():
+        if not str(k).isdigit():
+            raise CivicError(f"{what}: forwarding: port {k!r} is not a number")
+        forwarding[check_int(int(k), f"{what}: forwarding key", 0, 511)] = check_int(v, f"{what}: forwarding[{k}]", 0, 511)
+    training = raw.get("training", {})
+    return Entries(monitors=monitors, udp_port=port, plant_prefix=prefix,
+                   forwarding=forwarding, training=training if isinstance(training, dict) else {})
+
+
+def load_entries(path: str | Path) -> Entries:
+    """Read and validate an entries JSON file; errors are one line naming the key."""
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise CivicError(f"cannot read {path}: {exc.strerror}") from exc
+    try:
+        raw = json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise CivicError(f"{path}: invalid JSON: {exc}") from exc
+    return parse_entries(raw, str(path))

@@ -1,0 +1,111 @@
+"""The whole switch: plant lookup -> data collection -> slope -> classification -> verdict.
+
+`SwitchModel.step` is the plain per-message model (state kept between calls,
+exactly the P4 registers); `SwitchModel.run` is the vectorized model of a
+freshly reset switch. Both return the 16-bit verdict of every message.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from civic.entries import Entries, MonitorEntries
+from civic.pipeline import classification, data_collection, plant_lookup, slope
+from civic.pipeline.verdict import verdict_bits
+from civic.wire import SIGNALS
+
+
+@dataclass
+class MonitorTrace:
+    """What one monitor computed for each plant message (arrays aligned with them)."""
+
+    monitor: MonitorEntries
+    run: np.ndarray       # qualifying-run counter after the message
+    slope: np.ndarray     # raw estimator value (signed)
+    level: np.ndarray     # the monitored signal's current value
+    code: np.ndarray      # 0 not evaluated, 1..3 class
+
+    @property
+    def evaluated(self) -> np.ndarray:
+        return self.run >= self.monitor.window
+
+
+class SwitchModel:
+    """Software twin of the CIVIC P4 program, configured by table entries."""
+
+    def __init__(self, entries: Entries, plants: int = plant_lookup.MAX_PLANTS):
+        self.entries = entries
+        self.plants = plants
+        self.reset()
+
+    def reset(self) -> None:
+        """Zero every register, as a freshly started switch."""
+        self.last_seq = np.zeros(self.plants, dtype=np.int64)
+        self.rings = [data_collection.RingState(self.plants, m.ring_len) for m in self.entries.monitors]
+
+    # -- plain per-message model: one call per plant message, mirrors the P4 control flow
+    def step(self, src: int, seq: int, fields: dict) -> int:
+        slot = int(plant_lookup.plant_slot(src))
+        gap = plant_lookup.seq_gap(seq, int(self.last_seq[slot]))
+        self.last_seq[slot] = seq
+        verdict = 0
+        for m, (mon, ring) in enumerate(zip(self.entries.monitors, self.rings)):
+            q = all(lo <= fields[name] <= hi for name, (lo, hi) in zip(SIGNALS, mon.ranges()))
+            ring.run[slot] = data_collection.next_run(int(ring.run[slot]), q, gap)
+            x = fields[mon.signal]
+            old = ring.push(slot, x)
+            if mon.estimator == "lsq":
+                s = int(slope.lsq(ring.s0[slot], ring.s1[slot], mon.window))
+            else:
+                s = int(slope.endpoint(x, old))
+            code = 0
+            if ring.run[slot] >= mon.window:
+                code = int(classification.classify(np.array([s]), np.array([x]), mon.classes, mon.default_class)[0])
+            verdict |= code << (2 * m)
+        return verdict
+
+    def run_plain(self, messages: np.ndarray) -> np.ndarray:
+        """Verdict of every message via `step`; non-plant messages keep their verdict field."""
+        out = messages["verdict"].copy()
+        for i in np.flatnonzero(messages["plant"]):
+            row = messages[i]
+            out[i] = self.step(int(row["src"]), int(row["seq"]), {k: int(row[k]) for k in SIGNALS})
+        return out
+
+    # -- vectorized model of a freshly reset switch
+    def traces(self, messages: np.ndarray) -> tuple[np.ndarray, list[MonitorTrace]]:
+        """Per plant message (indices returned) what every monitor computed."""
+        idx = np.flatnonzero(messages["plant"])
+        msgs = messages[idx]
+        slot = plant_lookup.plant_slot(msgs["src"])
+        order = np.argsort(slot, kind="stable")
+        bounds = np.flatnonzero(np.diff(slot[order])) + 1
+        groups = np.split(order, bounds) if len(order) else []
+        gap = np.zeros(len(msgs), dtype=bool)
+        for g in groups:
+            gap[g] = plant_lookup.seq_gaps(msgs["seq"][g])
+        fields = {k: msgs[k].astype(np.int64) for k in SIGNALS}
+        traces = []
+        for mon in self.entries.monitors:
+            q = classification.qualified(fields, mon.ranges())
+            x = fields[mon.signal]
+            run = np.zeros(len(msgs), dtype=np.int64)
+            s = np.zeros(len(msgs), dtype=np.int64)
+            for g in groups:
+                run[g] = data_collection.runs(q[g], gap[g])
+                old, s0, s1 = data_collection.window_sums(x[g], mon.ring_len)
+                s[g] = slope.lsq(s0, s1, mon.window) if mon.estimator == "lsq" else slope.endpoint(x[g], old)
+            code = np.zeros(len(msgs), dtype=np.int64)
+            ev = run >= mon.window
+            code[ev] = classification.classify(s[ev], x[ev], mon.classes, mon.default_class)
+            traces.append(MonitorTrace(monitor=mon, run=run, slope=s, level=x, code=code))
+        return idx, traces
+
+    def run(self, messages: np.ndarray) -> np.ndarray:
+        """Verdict of every message (vectorized); non-plant messages keep their verdict field."""
+        idx, traces = self.traces(messages)
+        out = messages["verdict"].copy()
+        if len(idx):
+            out[idx] = verdict_bits([t.code for t in traces])
+        return out

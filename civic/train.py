@@ -1,0 +1,262 @@
+"""Learn class boundaries from labelled recordings and emit switch table entries.
+
+`BandClassifier` is a small estimator (fit/predict/score on numpy arrays):
+it maps each evaluated window to z = log|slope| - beta*log(level), a feature
+in which the classes of a fault differ by a constant (Torricelli: flow scales
+with a power of the level, a closure scales it by a factor), picks thresholds
+on z for the best cost-weighted training accuracy with the widest margin, and
+writes them back as integer range entries on (slope, level) per level band.
+With `banded=False` (beta = 0, one band) it is the paper's 1-D slope table.
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from civic.config import Monitor, MonitorConfig
+from civic.entries import SLOPE_MAX, SLOPE_MIN, Entries, MonitorEntries
+from civic.errors import CivicError
+from civic.pipeline import SwitchModel
+from civic.wire import CLASS_CODES, ip_to_int, read_pcap
+
+NAMES = {v: k for k, v in CLASS_CODES.items()}
+LEVEL_TOP = 10_000          # mL: an upper tank's rim; bands above it repeat the last one
+ABOVE_NORMAL = CLASS_CODES["error"]  # faster than any normal run: the model does not explain it
+
+
+@dataclass
+class Run:
+    """The evaluated windows of one labelled recording (one plant, one monitor)."""
+
+    file: str
+    src: str
+    monitor: str
+    cls: int
+    slope: np.ndarray
+    level: np.ndarray
+    t: np.ndarray
+
+
+def read_labels(path: str | Path) -> list[dict]:
+    """labels.csv rows; needs columns file, monitor, class (src_ip optional)."""
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as exc:
+        raise CivicError(f"cannot read labels {path}: {exc.strerror}") from exc
+    if not rows:
+        raise CivicError(f"{path}: no label rows")
+    for col in ("file", "monitor", "class"):
+        if col not in rows[0]:
+            raise CivicError(f"{path}: missing column '{col}'")
+    for i, r in enumerate(rows):
+        if r["class"] not in CLASS_CODES:
+            raise CivicError(f"{path}: row {i + 2}: class {r['class']!r} is not normal/warning/error")
+    return rows
+
+
+def monitor_entries(mon: Monitor, estimator: str, rows=None, default_class=3) -> MonitorEntries:
+    table = np.zeros((0, 5), np.int64) if rows is None else np.asarray(rows, np.int64).reshape(-1, 5)
+    return MonitorEntries(name=mon.name, signal=mon.signal, window=mon.window,
+                          precondition=mon.precondition, estimator=estimator,
+                          default_class=default_class, classes=table)
+
+
+def collect_runs(folder: str | Path, labels: list[dict], config: MonitorConfig, estimator: str) -> list[Run]:
+    """Run the switch model over every labelled recording and keep the evaluated windows."""
+    folder = Path(folder)
+    names = [m.name for m in config.monitors]
+    entries = Entries(monitors=[monitor_entries(m, estimator) for m in config.monitors],
+                      udp_port=config.udp_port, plant_prefix=config.plant_prefix)
+    runs, cache = [], {}
+    for row in labels:
+        if row["monitor"] not in names:
+            raise CivicError(f"labels: monitor {row['monitor']!r} is not configured ({', '.join(names)})")
+        path = folder / row["file"]
+        if path not in cache:
+            cap = read_pcap(path, config.udp_port, config.plant_prefix)
+            cache[path] = (cap.messages, *SwitchModel(entries).traces(cap.messages))
+        msgs, idx, traces = cache[path]
+        tr = traces[names.index(row["monitor"])]
+        keep = tr.evaluated.copy()
+        if row.get("src_ip"):
+            keep &= msgs["src"][idx] == ip_to_int(row["src_ip"])
+        runs.append(Run(file=row["file"], src=row.get("src_ip", ""), monitor=row["monitor"],
+                        cls=CLASS_CODES[row["class"]], slope=tr.slope[keep], level=tr.level[keep],
+                        t=msgs["t"][idx][keep]))
+    return runs
+
+
+def _cost(true: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """Missing severity costs twice a false alarm: an undetected error is the worst mistake."""
+    return np.where(pred < true, 2.0, np.where(pred > true, 1.0, 0.0))
+
+
+class BandClassifier:
+    """Slope classes per level band, learned in the level-normalized feature z."""
+
+    def __init__(self, banded: bool = True, band_ml: int = 200):
+        self.banded = banded
+        self.band_ml = band_ml
+
+    # -- features
+    def _z(self, slope, level):
+        mag = np.maximum(self.sign_ * np.asarray(slope, float), 1.0)
+        return np.log(mag) - self.beta_ * np.log(np.maximum(np.asarray(level, float), 1.0))
+
+    def fit(self, slope: np.ndarray, level: np.ndarray, y: np.ndarray, level_range=(0, 0xFFFF)):
+        slope, level, y = (np.asarray(a) for a in (slope, level, y))
+        classes = np.unique(y)
+        if len(classes) < 2:
+            raise CivicError("training needs windows of at least two classes per monitor")
+        normal = CLASS_CODES["normal"]
+        ref = slope[y == normal] if np.any(y == normal) else slope
+        self.sign_ = 1.0 if np.median(ref) >= 0 else -1.0
+        self.beta_ = 0.0
+        if self.banded:
+            # common exponent: regress log|slope| on log(level) within classes
+            lm = np.log(np.maximum(self.sign_ * slope, 1.0))
+            ll = np.log(np.maximum(level, 1.0))
+            num = den = 0.0
+            for c in classes:
+                k = y == c
+                if k.sum() > 2:
+                    dl = ll[k] - ll[k].mean()
+                    num += float(dl @ (lm[k] - lm[k].mean()))
+                    den += float(dl @ dl)
+            self.beta_ = num / den if den > 0 else 0.0
+            # keep beta only when the data show a level dependence (|t| > 3); else one band
+            if den > 0:
+                resid = np.concatenate([lm[y == c] - lm[y == c].mean() - self.beta_ * (ll[y == c] - ll[y == c].mean())
+                                        for c in classes])
+                stderr = np.sqrt(resid.var() / den)
+                if abs(self.beta_) < 3 * stderr:
+                    self.beta_ = 0.0
+        z = self._z(slope, level)
+        centers = {int(c): float(np.median(z[y == c])) for c in classes}
+        order = sorted(centers, key=centers.get)      # classes by ascending z
+        cuts = []
+        for a, b in zip(order[:-1], order[1:]):
+            cuts.append(self._best_cut(z, y, a, b, centers))
+        # above the top class (faster than any normal run, by more than the distance from the
+        # normal centre to its cut): the model has no explanation
+        top = order[-1]
+        upper = float(z[y == top].max()) + abs(centers[top] - cuts[-1]) if cuts else np.inf
+        self.intervals_ = []   # (z_lo, z_hi, class) covering the real line
+        lo = -np.inf
+        for c, hi in zip(order, cuts + [upper]):
+            self.intervals_.append((lo, hi, c))
+            lo = hi
+        if np.isfinite(upper):
+            self.intervals_.append((upper, np.inf, ABOVE_NORMAL))
+        self.level_range_ = level_range
+        self.rows_ = self._rows()
+        return self
+
+    @staticmethod
+    def _best_cut(z, y, a, b, centers) -> float:
+        """Threshold between adjacent classes a (below) and b (above): least cost, widest margin."""
+        k = (y == a) | (y == b)
+        zz, yy = z[k], y[k]
+        cand = np.unique(zz)
+        mids = np.concatenate(([cand[0] - 1.0], (cand[:-1] + cand[1:]) / 2, [cand[-1] + 1.0]))
+        costs = np.array([_cost(yy, np.where(zz < t, a, b)).sum() for t in mids])
+        best = np.flatnonzero(costs == costs.min())
+        # widest margin: the middle of the longest stretch of equally good cuts
+        runs = np.split(best, np.flatnonzero(np.diff(best) > 1) + 1)
+        widths = [cand[min(r[-1], len(cand) - 1)] - cand[max(r[0] - 1, 0)] for r in runs]
+        r = runs[int(np.argmax(widths))]
+        lo = cand[max(r[0] - 1, 0)] if r[0] > 0 else centers[a]
+        hi = cand[min(r[-1], len(cand) - 1)] if r[-1] < len(cand) else centers[b]
+        return float((lo + hi) / 2)
+
+    # -- table
+    def _bands(self) -> list[tuple[int, int, float]]:
+        lo, hi = self.level_range_
+        if not self.banded:
+            return [(0, 0xFFFF, 1.0)]
+        top = min(hi, LEVEL_TOP)
+        edges = list(range(lo, top, self.band_ml)) + [top + 1]
+        bands = [(a, b - 1, (a + b - 1) / 2) for a, b in zip(edges[:-1], edges[1:])]
+        # outside the precondition's level range the table repeats the edge bands, so it
+        # covers every level (a miss would mean error)
+        last = bands[-1]
+        bands[-1] = (last[0], 0xFFFF, last[2])
+        if lo > 0:
+            bands.insert(0, (0, lo - 1, bands[0][2]))
+        return bands
+
+    def _slope_at(self, z: float, level: float) -> int:
+        """Raw slope whose feature is z at this level (rounded toward zero)."""
+        v = self.sign_ * np.exp(z + self.beta_ * np.log(max(level, 1.0)))
+        return int(np.clip(np.trunc(v), SLOPE_MIN, SLOPE_MAX))
+
+    def _rows(self) -> np.ndarray:
+        rows = []
+        for llo, lhi, lc in self._bands():
+            # interval boundaries in raw slope, ascending
+            pieces = []
+            for zlo, zhi, c in self.intervals_:
+                a = SLOPE_MIN if not np.isfinite(zlo) else self._slope_at(zlo, lc)
+                b = SLOPE_MAX if not np.isfinite(zhi) else self._slope_at(zhi, lc)
+                if self.sign_ < 0:
+                    a, b = (SLOPE_MAX if not np.isfinite(zlo) else a), (SLOPE_MIN if not np.isfinite(zhi) else b)
+                pieces.append((min(a, b), max(a, b), c))
+            pieces.sort()
+            start = SLOPE_MIN
+            for i, (_, hi, c) in enumerate(pieces):
+                end = SLOPE_MAX if i == len(pieces) - 1 else hi
+                if end >= start:
+                    rows.append([start, end, llo, lhi, c])
+                    start = end + 1
+        return self._merge_bands(np.array(rows, dtype=np.int64))
+
+    @staticmethod
+    def _merge_bands(rows: np.ndarray) -> np.ndarray:
+        """Join neighbouring bands with identical slope boundaries (fewer table entries)."""
+        out: list[list[int]] = []
+        bands = [rows[rows[:, 2] == lo] for lo in np.unique(rows[:, 2])]
+        prev = None
+        for b in bands:
+            key = b[:, [0, 1, 4]].tolist()
+            if key == prev:
+                for r in out[-len(b):]:
+                    r[3] = int(b[0, 3])
+            else:
+                out.extend(b.tolist())
+            prev = key
+        return np.array(out, dtype=np.int64)
+
+    def predict(self, slope, level) -> np.ndarray:
+        from civic.pipeline.classification import classify
+        return classify(np.asarray(slope), np.asarray(level), self.rows_, ABOVE_NORMAL)
+
+    def score(self, slope, level, y) -> float:
+        return float(np.mean(self.predict(slope, level) == np.asarray(y)))
+
+
+def fit_monitor(mon: Monitor, runs: list[Run], estimator: str, banded: bool) -> tuple[MonitorEntries, BandClassifier]:
+    mine = [r for r in runs if r.monitor == mon.name and len(r.slope)]
+    if not mine:
+        raise CivicError(f"no evaluated training windows for monitor {mon.name!r}")
+    slope = np.concatenate([r.slope for r in mine])
+    level = np.concatenate([r.level for r in mine])
+    y = np.concatenate([np.full(len(r.slope), r.cls) for r in mine])
+    lrange = mon.precondition.get(mon.signal, (0, 0xFFFF))
+    clf = BandClassifier(banded=banded).fit(slope, level, y, level_range=lrange)
+    return monitor_entries(mon, estimator, clf.rows_, ABOVE_NORMAL), clf
+
+
+def train(runs: list[Run], config: MonitorConfig, estimator: str, banded: bool) -> Entries:
+    monitors = []
+    for mon in config.monitors:
+        if any(r.monitor == mon.name for r in runs):
+            monitors.append(fit_monitor(mon, runs, estimator, banded)[0])
+        else:  # no training data: disabled in effect (never qualifies is not expressible), keep all-error
+            raise CivicError(f"labels have no recording for monitor {mon.name!r}")
+    return Entries(monitors=monitors, udp_port=config.udp_port, plant_prefix=config.plant_prefix,
+                   training={"estimator": estimator, "banded": banded,
+                             "runs": sorted({r.file for r in runs})})

@@ -1,0 +1,42 @@
+"""civic replay: recordings through the switch (software model or BMv2), verdicts written in."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from civic.errors import CivicError
+
+
+def register(sub) -> None:
+    p = sub.add_parser("replay", help="replay recordings through the switch and write verdicts")
+    p.add_argument("inputs", nargs="+", metavar="IN.pcap")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="a file for one input, a folder for several")
+    p.add_argument("--entries", required=True, metavar="ENTRIES.json")
+    p.add_argument("--target", choices=("model", "bmv2"), default="model")
+    p.add_argument("--pipeline", metavar="DIR", default="build/v1model",
+                   help="bmv2: folder with civic.json and civic.p4info.txtpb")
+    p.set_defaults(func=run)
+
+
+def output_paths(inputs: list[str], output: str) -> list[Path]:
+    out = Path(output)
+    if len(inputs) == 1 and not out.is_dir():
+        return [out]
+    if out.exists() and not out.is_dir():
+        raise CivicError(f"{out}: several inputs need an output folder")
+    names = [Path(i).name for i in inputs]
+    if len(set(names)) != len(names):
+        raise CivicError("inputs share a file name; they would overwrite each other in the output folder")
+    out.mkdir(parents=True, exist_ok=True)
+    return [out / n for n in names]
+
+
+def run(args) -> int:
+    from civic.entries import load_entries
+    from civic.replay import replay_files
+
+    entries = load_entries(args.entries)
+    outs = output_paths(args.inputs, args.output)
+    stats = replay_files([Path(i) for i in args.inputs], outs, entries, args.entries, args.target, args.pipeline)
+    print(f"replayed {stats['frames']} frames ({stats['plant']} plant messages, "
+          f"{stats['evaluated']} with a verdict) from {len(outs)} file(s) -> {args.output}")
+    return 0

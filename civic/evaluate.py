@@ -1,0 +1,166 @@
+"""Scores as the CIVIC paper reports them: per class precision, recall, F1, accuracy.
+
+Only evaluated messages (verdict code != 0) are scored; coverage says how many
+of the messages whose full window qualified got a verdict, and the detection
+delay is the time from the first qualifying message of a run to its first
+correct verdict.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from civic.config import MonitorConfig
+from civic.entries import Entries
+from civic.errors import CivicError
+from civic.pipeline import SwitchModel
+from civic.train import NAMES, monitor_entries
+from civic.wire import CLASS_CODES, ip_to_int, monitor_verdict, read_pcap
+
+CLASSES = (1, 2, 3)
+
+
+def score(true: np.ndarray, pred: np.ndarray) -> dict:
+    """Per-class one-vs-rest precision/recall/F1/accuracy, macro F1 and the confusion matrix."""
+    true, pred = np.asarray(true), np.asarray(pred)
+    out = {"classes": {}, "n": int(len(true))}
+    f1s = []
+    for c in CLASSES:
+        tp = int(np.sum((pred == c) & (true == c)))
+        fp = int(np.sum((pred == c) & (true != c)))
+        fn = int(np.sum((pred != c) & (true == c)))
+        tn = len(true) - tp - fp - fn
+        prec = tp / (tp + fp) if tp + fp else 0.0
+        rec = tp / (tp + fn) if tp + fn else 0.0
+        f1 = 2 * prec * rec / (prec + rec) if prec + rec else 0.0
+        support = tp + fn
+        out["classes"][NAMES[c]] = {"precision": prec, "recall": rec, "f1": f1,
+                                    "accuracy": (tp + tn) / len(true) if len(true) else 0.0,
+                                    "support": support}
+        if support:
+            f1s.append(f1)
+    out["macro_f1"] = float(np.mean(f1s)) if f1s else 0.0
+    out["accuracy"] = float(np.mean(true == pred)) if len(true) else 0.0
+    out["confusion"] = [[int(np.sum((true == a) & (pred == b))) for b in CLASSES] for a in CLASSES]
+    return out
+
+
+@dataclass
+class MonitorResult:
+    name: str
+    true: list = field(default_factory=list)      # per evaluated message
+    pred: list = field(default_factory=list)
+    qualified: int = 0                            # messages whose full window qualified
+    delays: dict = field(default_factory=lambda: {c: [] for c in CLASSES})
+    runs: list = field(default_factory=list)      # (label, class, t, slope, level, code) for plots
+
+    def summary(self) -> dict:
+        true = np.concatenate(self.true) if self.true else np.zeros(0, int)
+        pred = np.concatenate(self.pred) if self.pred else np.zeros(0, int)
+        s = score(true, pred)
+        s["coverage"] = len(true) / self.qualified if self.qualified else 0.0
+        s["detection_delay_s"] = {NAMES[c]: (float(np.mean(d)) if d else None) for c, d in self.delays.items()}
+        s["undetected_runs"] = sum(1 for r in self.runs if not np.any(r[5] == r[1]))
+        return s
+
+
+def find_output(out: Path, name: str, single: bool) -> Path | None:
+    if out.is_dir():
+        p = out / name
+        return p if p.exists() else None
+    return out if single or out.name == name else None
+
+
+def evaluate(out: str | Path, labels: list[dict], config: MonitorConfig | Entries) -> dict[str, MonitorResult]:
+    """Score the verdicts in replayed recordings (a file or a folder) against labels."""
+    out = Path(out)
+    if not out.exists():
+        raise CivicError(f"{out}: no such file or directory")
+    files = {r["file"] for r in labels}
+    single = out.is_file() and len(files) == 1
+    monitors = config.monitors
+    names = [m.name for m in monitors]
+    estimator = "lsq"
+    if isinstance(config, Entries):
+        probe = config
+    else:
+        probe = Entries(monitors=[monitor_entries(m, estimator) for m in monitors],
+                        udp_port=config.udp_port, plant_prefix=config.plant_prefix)
+    results = {n: MonitorResult(n) for n in names}
+    cache = {}
+    matched = 0
+    for row in labels:
+        path = find_output(out, row["file"], single)
+        if path is None:
+            continue
+        if row["monitor"] not in names:
+            raise CivicError(f"labels: monitor {row['monitor']!r} is not configured ({', '.join(names)})")
+        matched += 1
+        if path not in cache:
+            cap = read_pcap(path, config.udp_port, config.plant_prefix)
+            cache[path] = (cap.messages, *SwitchModel(probe).traces(cap.messages))
+        msgs, idx, traces = cache[path]
+        m = names.index(row["monitor"])
+        tr = traces[m]
+        sel = np.ones(len(idx), bool)
+        if row.get("src_ip"):
+            sel &= msgs["src"][idx] == ip_to_int(row["src_ip"])
+        code = monitor_verdict(msgs["verdict"][idx][sel], m).astype(int)
+        cls = CLASS_CODES[row["class"]]
+        ev = code != 0
+        res = results[row["monitor"]]
+        res.true.append(np.full(int(ev.sum()), cls))
+        res.pred.append(code[ev])
+        res.qualified += int(tr.evaluated[sel].sum())
+        t = msgs["t"][idx][sel]
+        start = np.flatnonzero(tr.run[sel] == 1)
+        hit = np.flatnonzero(code == cls)
+        if len(start) and len(hit):
+            res.delays[cls].append(float(t[hit[0]] - t[start[0]]))
+        res.runs.append((f"{row['file']} {row.get('src_ip', '')}".strip(), cls, t - t[0] if len(t) else t,
+                         tr.slope[sel] * tr.monitor.slope_scale, tr.level[sel], code))
+    if matched == 0:
+        raise CivicError(f"{out}: none of the labelled recordings found there")
+    return results
+
+
+def plot_monitor(res: MonitorResult, path: Path, entries_monitor=None) -> None:
+    """Slope over time per run (coloured by true class) and, with entries, the class regions."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colors = {1: "tab:green", 2: "tab:orange", 3: "tab:red"}
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5))
+    ax = axes[0]
+    for label, cls, t, s, _lvl, code in res.runs:
+        ev = code != 0
+        ax.plot(t[ev], s[ev], ".", ms=2, color=colors[cls], alpha=0.6)
+    ax.set(title=f"{res.name}: window slope of evaluated messages", xlabel="time in recording (s)",
+           ylabel="slope (mL/s)")
+    ax.legend(handles=[plt.Line2D([], [], marker="o", ls="", color=c, label=NAMES[k]) for k, c in colors.items()],
+              title="true class")
+    ax = axes[1]
+    if entries_monitor is not None and len(entries_monitor.classes):
+        scale = entries_monitor.slope_scale
+        lv = np.concatenate([r[4][r[5] != 0] for r in res.runs]) if res.runs else np.zeros(1)
+        sv = np.concatenate([r[3][r[5] != 0] for r in res.runs]) if res.runs else np.zeros(1)
+        lmin, lmax = (lv.min() - 500, lv.max() + 500) if len(lv) else (0, 10000)
+        smin, smax = (sv.min() * 1.3, sv.max() * 1.3) if len(sv) else (-1, 1)
+        smin, smax = min(smin, smax, 0), max(smin, smax, 0)
+        for lo, hi, llo, lhi, c in entries_monitor.classes:
+            x0, x1 = max(llo, lmin), min(lhi, lmax)
+            y0, y1 = max(lo * scale, smin), min(hi * scale, smax)
+            if x1 > x0 and y1 > y0:
+                ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, color=colors[int(c)], alpha=0.15, lw=0))
+        ax.set_xlim(lmin, lmax)
+        ax.set_ylim(smin, smax)
+    for label, cls, t, s, lvl, code in res.runs:
+        ev = code != 0
+        ax.plot(lvl[ev], s[ev], ".", ms=2, color=colors[cls], alpha=0.6)
+    ax.set(title="slope vs level with the class table (shaded)", xlabel="level (mL)", ylabel="slope (mL/s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -260,3 +260,17 @@ def train(runs: list[Run], config: MonitorConfig, estimator: str, banded: bool) 
     return Entries(monitors=monitors, udp_port=config.udp_port, plant_prefix=config.plant_prefix,
                    training={"estimator": estimator, "banded": banded,
                              "runs": sorted({r.file for r in runs})})
+
+
+MODES = (("endpoint", False), ("lsq", False), ("endpoint", True), ("lsq", True))  # paper mode first
+
+
+def leave_one_run_out(runs: list[Run], mon: Monitor, estimator: str, banded: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Pooled (true, predicted) classes, each run predicted by a table trained without it."""
+    mine = [r for r in runs if r.monitor == mon.name and len(r.slope)]
+    true, pred = [], []
+    for i, held in enumerate(mine):
+        _, clf = fit_monitor(mon, mine[:i] + mine[i + 1:], estimator, banded)
+        true.append(np.full(len(held.slope), held.cls))
+        pred.append(clf.predict(held.slope, held.level))
+    return np.concatenate(true), np.concatenate(pred)

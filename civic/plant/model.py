@@ -1,0 +1,420 @@
+"""Plant model: a data description of tanks, pumps, valves, links and sensors.
+
+The model file is TOML (see civic/plant/README.md for the schema). A model is
+plain data: `civic diagnose` edits copies (adds a leak link, a dead time, a
+sensor offset...) and re-simulates them with civic.plant.simulate.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from dataclasses import MISSING, dataclass, field, fields
+from pathlib import Path
+
+from civic.errors import CivicError
+
+OUTSIDE = "outside"
+LAWS = ("orifice", "bidirectional")
+QUANTITIES = ("volume", "level")
+
+
+@dataclass
+class Input:
+    name: str
+    wire: str | None = None          # wire field (p1, v1, v2) or None
+    wire_scale: float = 1.0          # wire units per physical unit
+    min: float | None = None
+    max: float | None = None
+
+
+@dataclass
+class Overflow:
+    to: str = OUTSIDE                # tank name or "outside"
+    level: float | None = None       # rim level, dm
+    volume: float | None = None      # rim volume, L (neither: the tank's capacity)
+
+
+@dataclass
+class Tank:
+    name: str
+    area: float
+    capacity: float = math.inf
+    overflow: Overflow | None = None
+
+    def rim_volume(self) -> float:
+        o = self.overflow
+        if o is None:
+            return math.inf
+        if o.volume is not None:
+            return float(o.volume)
+        if o.level is not None:
+            return float(o.level) * self.area
+        return self.capacity
+
+
+@dataclass
+class Pump:
+    name: str
+    input: str
+    from_: str
+    to: str
+    gain: float
+    dead_time: float = 0.0
+    closure: float = 0.0
+    min_source_volume: float = 0.0
+    head_coeff: float = 0.0
+    input_offset: float = 0.0
+
+
+@dataclass
+class Valve:
+    name: str
+    input: str
+    tau: float = 0.0
+    dead_time: float = 0.0
+    characteristic: float | str = "linear"
+
+    def exponent(self) -> float:
+        c = self.characteristic
+        if isinstance(c, str):
+            if c == "linear":
+                return 1.0
+            raise CivicError(f"valve {self.name}: characteristic must be 'linear' or an exponent, not {c!r}")
+        return float(c)
+
+
+@dataclass
+class Link:
+    name: str
+    from_: str
+    to: str
+    coeff: float
+    law: str = "orifice"
+    valve: str | None = None
+    closure: float = 0.0
+    exponent: float = 0.5
+    min_level: float = 0.0
+
+
+@dataclass
+class Sensor:
+    name: str
+    tank: str
+    quantity: str = "volume"
+    gain: float = 1.0
+    offset: float = 0.0
+    noise_sigma: float = 0.0
+    resolution: float = 0.0
+    min: float | None = None
+    max: float | None = None
+    wire: str | None = None
+    wire_scale: float = 1.0
+
+
+_SECTIONS = (("tank", "tanks", Tank), ("pump", "pumps", Pump), ("valve", "valves", Valve),
+             ("link", "links", Link), ("sensor", "sensors", Sensor))
+_FLOAT_FIELDS = {"area", "capacity", "gain", "dead_time", "closure", "min_source_volume", "head_coeff",
+                 "input_offset", "tau", "coeff", "exponent", "min_level", "offset", "noise_sigma",
+                 "resolution", "min", "max", "wire_scale", "level", "volume"}
+
+
+def _key(name: str) -> str:
+    return "from" if name == "from_" else name
+
+
+def _build(cls, raw: dict, where: str):
+    if not isinstance(raw, dict):
+        raise CivicError(f"{where}: expected a table")
+    known = {f.name: f for f in fields(cls)}
+    kw = {}
+    for k, v in raw.items():
+        attr = "from_" if k == "from" else k
+        if attr not in known:
+            raise CivicError(f"{where}: unknown key {k!r} (known: {', '.join(_key(n) for n in known)})")
+        if attr == "overflow":
+            v = _build(Overflow, v, f"{where}.overflow")
+        elif attr in _FLOAT_FIELDS and v is not None:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise CivicError(f"{where}: {k} must be a number, not {v!r}")
+            v = float(v)
+        elif attr == "characteristic" and not isinstance(v, str):
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise CivicError(f"{where}: characteristic must be 'linear' or a number")
+            v = float(v)
+        kw[attr] = v
+    missing = [f.name for f in fields(cls)
+               if f.name not in kw and f.default is MISSING and f.default_factory is MISSING]
+    if missing:
+        raise CivicError(f"{where}: missing {', '.join(_key(m) for m in missing)}")
+    return cls(**kw)
+
+
+def _dump(obj) -> dict:
+    out = {}
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        if v is None:
+            continue
+        if isinstance(v, Overflow):
+            v = _dump(v)
+        out[_key(f.name)] = v
+    return out
+
+
+@dataclass
+class PlantModel:
+    name: str = "plant"
+    dt: float = 0.1
+    substeps: int = 2
+    inputs: list[Input] = field(default_factory=list)
+    tanks: list[Tank] = field(default_factory=list)
+    pumps: list[Pump] = field(default_factory=list)
+    valves: list[Valve] = field(default_factory=list)
+    links: list[Link] = field(default_factory=list)
+    sensors: list[Sensor] = field(default_factory=list)
+
+    # ---- construction / serialisation -------------------------------------------------
+    @classmethod
+    def from_dict(cls, d: dict, where: str = "model") -> "PlantModel":
+        m = d.get("model", {})
+        unknown = set(d) - {"model", "inputs", "tank", "pump", "valve", "link", "sensor"}
+        if unknown:
+            raise CivicError(f"{where}: unknown section(s) {', '.join(sorted(unknown))}")
+        bad = set(m) - {"name", "dt", "substeps"}
+        if bad:
+            raise CivicError(f"{where}: [model] unknown key(s) {', '.join(sorted(bad))}")
+        try:
+            model = cls(name=str(m.get("name", "plant")), dt=float(m.get("dt", 0.1)),
+                        substeps=int(m.get("substeps", 2)))
+        except (TypeError, ValueError) as exc:
+            raise CivicError(f"{where}: [model]: {exc}") from exc
+        for name, spec in d.get("inputs", {}).items():
+            spec = dict(spec) if isinstance(spec, dict) else {}
+            spec["name"] = name
+            model.inputs.append(_build(Input, spec, f"{where}: inputs.{name}"))
+        for key, attr, klass in _SECTIONS:
+            rows = d.get(key, [])
+            if not isinstance(rows, list):
+                raise CivicError(f"{where}: [[{key}]] must be an array of tables")
+            for i, raw in enumerate(rows):
+                getattr(model, attr).append(_build(klass, raw, f"{where}: {key}[{i}]"))
+        # inputs referenced by actuators but not declared: plain physical inputs
+        declared = {i.name for i in model.inputs}
+        for a in model.pumps + model.valves:
+            if a.input not in declared:
+                model.inputs.append(Input(a.input))
+                declared.add(a.input)
+        model.validate(where)
+        return model
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> "PlantModel":
+        try:
+            text = Path(path).read_text()
+        except OSError as exc:
+            raise CivicError(f"cannot read model {path}: {exc.strerror}") from exc
+        try:
+            d = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise CivicError(f"{path}: bad TOML: {exc}") from exc
+        return cls.from_dict(d, where=str(path))
+
+    def to_dict(self) -> dict:
+        d = {"model": {"name": self.name, "dt": self.dt, "substeps": self.substeps},
+             "inputs": {}}
+        for i in self.inputs:
+            spec = _dump(i)
+            spec.pop("name")
+            d["inputs"][i.name] = spec
+        for key, attr, _ in _SECTIONS:
+            d[key] = [_dump(x) for x in getattr(self, attr)]
+        return d
+
+    def to_toml(self, path: str | Path | None = None) -> str:
+        d = self.to_dict()
+        lines = ["[model]"] + [f"{k} = {_toml_value(v)}" for k, v in d["model"].items()]
+        lines += ["", "[inputs]"] + [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in d["inputs"].items()]
+        for key, _, _ in _SECTIONS:
+            for row in d[key]:
+                lines += ["", f"[[{key}]]"] + [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in row.items()]
+        text = "\n".join(lines) + "\n"
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+    def copy(self) -> "PlantModel":
+        return copy.deepcopy(self)
+
+    # ---- names ------------------------------------------------------------------------
+    @property
+    def input_names(self) -> list[str]:
+        return [i.name for i in self.inputs]
+
+    @property
+    def signal_names(self) -> list[str]:
+        return [s.name for s in self.sensors]
+
+    @property
+    def state_names(self) -> list[str]:
+        return [t.name for t in self.tanks] + [v.name for v in self.valves]
+
+    @property
+    def tank_names(self) -> list[str]:
+        return [t.name for t in self.tanks]
+
+    def tank(self, name: str) -> Tank:
+        return self.find("tank", name)
+
+    def find(self, kind: str, name: str):
+        attr = {"tank": "tanks", "pump": "pumps", "valve": "valves", "link": "links",
+                "sensor": "sensors", "input": "inputs"}.get(kind)
+        if attr is None:
+            raise CivicError(f"unknown component kind {kind!r}")
+        for x in getattr(self, attr):
+            if x.name == name:
+                return x
+        raise CivicError(f"model {self.name}: no {kind} named {name!r}")
+
+    def get(self, path: str):
+        """'link.pipe23.coeff' -> value; 'tank.T1.overflow.level' also works."""
+        parts = path.split(".")
+        if len(parts) < 3:
+            raise CivicError(f"bad parameter path {path!r} (kind.name.attribute)")
+        obj = self.find(parts[0], parts[1])
+        for p in parts[2:]:
+            p = "from_" if p == "from" else p
+            if not hasattr(obj, p):
+                raise CivicError(f"{path}: no attribute {p!r}")
+            obj = getattr(obj, p)
+        return obj
+
+    def set(self, path: str, value) -> None:
+        parts = path.split(".")
+        if len(parts) < 3:
+            raise CivicError(f"bad parameter path {path!r} (kind.name.attribute)")
+        obj = self.find(parts[0], parts[1])
+        for p in parts[2:-1]:
+            obj = getattr(obj, p)
+        last = "from_" if parts[-1] == "from" else parts[-1]
+        if not hasattr(obj, last):
+            raise CivicError(f"{path}: no attribute {last!r}")
+        setattr(obj, last, value)
+
+    # ---- checks -----------------------------------------------------------------------
+    def validate(self, where: str = "model") -> None:
+        if not (self.dt > 0):
+            raise CivicError(f"{where}: dt must be > 0")
+        if self.substeps < 1:
+            raise CivicError(f"{where}: substeps must be >= 1")
+        if not self.tanks:
+            raise CivicError(f"{where}: no [[tank]]")
+        for kind, items in (("input", self.inputs), ("tank", self.tanks), ("pump", self.pumps),
+                            ("valve", self.valves), ("link", self.links), ("sensor", self.sensors)):
+            names = [x.name for x in items]
+            dup = {n for n in names if names.count(n) > 1}
+            if dup:
+                raise CivicError(f"{where}: duplicate {kind} name(s) {', '.join(sorted(dup))}")
+        tanks = set(self.tank_names)
+        if OUTSIDE in tanks:
+            raise CivicError(f"{where}: a tank may not be called {OUTSIDE!r}")
+        valves = {v.name for v in self.valves}
+        inputs = set(self.input_names)
+        for t in self.tanks:
+            if not (t.area > 0):
+                raise CivicError(f"{where}: tank {t.name}: area must be > 0")
+            if t.overflow is not None:
+                if t.overflow.to != OUTSIDE and t.overflow.to not in tanks:
+                    raise CivicError(f"{where}: tank {t.name}: overflow to unknown tank {t.overflow.to!r}")
+                if t.overflow.to == t.name:
+                    raise CivicError(f"{where}: tank {t.name}: overflows into itself")
+                if not math.isfinite(t.rim_volume()):
+                    raise CivicError(f"{where}: tank {t.name}: overflow needs a level, volume or capacity")
+        self._overflow_order(where)
+        for p in self.pumps:
+            for end in (p.from_, p.to):
+                if end != OUTSIDE and end not in tanks:
+                    raise CivicError(f"{where}: pump {p.name}: unknown tank {end!r}")
+            if p.input not in inputs:
+                raise CivicError(f"{where}: pump {p.name}: unknown input {p.input!r}")
+            if p.dead_time < 0:
+                raise CivicError(f"{where}: pump {p.name}: dead_time must be >= 0")
+        for v in self.valves:
+            if v.input not in inputs:
+                raise CivicError(f"{where}: valve {v.name}: unknown input {v.input!r}")
+            if v.tau < 0 or v.dead_time < 0:
+                raise CivicError(f"{where}: valve {v.name}: tau and dead_time must be >= 0")
+            v.exponent()
+        for link in self.links:
+            if link.law not in LAWS:
+                raise CivicError(f"{where}: link {link.name}: law must be one of {', '.join(LAWS)}")
+            if link.from_ not in tanks:
+                raise CivicError(f"{where}: link {link.name}: unknown tank {link.from_!r}")
+            if link.to != OUTSIDE and link.to not in tanks:
+                raise CivicError(f"{where}: link {link.name}: unknown tank {link.to!r}")
+            if link.law == "bidirectional" and link.to == OUTSIDE:
+                raise CivicError(f"{where}: link {link.name}: a bidirectional link needs two tanks")
+            if link.valve is not None and link.valve not in valves:
+                raise CivicError(f"{where}: link {link.name}: unknown valve {link.valve!r}")
+            if not (link.exponent > 0):
+                raise CivicError(f"{where}: link {link.name}: exponent must be > 0")
+        for s in self.sensors:
+            if s.tank not in tanks:
+                raise CivicError(f"{where}: sensor {s.name}: unknown tank {s.tank!r}")
+            if s.quantity not in QUANTITIES:
+                raise CivicError(f"{where}: sensor {s.name}: quantity must be volume or level")
+        wires = [x.wire for x in self.inputs + self.sensors if x.wire]
+        dup = {w for w in wires if wires.count(w) > 1}
+        if dup:
+            raise CivicError(f"{where}: wire field(s) used twice: {', '.join(sorted(dup))}")
+
+    def _overflow_order(self, where: str = "model") -> list[int]:
+        """Tank indices ordered so that a tank spills before the tank it spills into."""
+        idx = {t.name: i for i, t in enumerate(self.tanks)}
+        order, state = [], {}
+
+        def visit(i, depth=0):
+            if state.get(i) == 1:
+                raise CivicError(f"{where}: overflow cycle through tank {self.tanks[i].name}")
+            if state.get(i) == 2:
+                return
+            state[i] = 1
+            t = self.tanks[i]
+            # a tank must spill before its target: visit the sources first
+            for j, s in enumerate(self.tanks):
+                if s.overflow is not None and s.overflow.to == t.name:
+                    visit(j)
+            state[i] = 2
+            order.append(i)
+
+        for i in range(len(self.tanks)):
+            visit(i)
+        return [i for i in order if self.tanks[i].overflow is not None]
+
+    @property
+    def wire_fields(self) -> list[str]:
+        return [x.wire for x in self.sensors + self.inputs if x.wire]
+
+
+def _toml_key(k: str) -> str:
+    return k if k.replace("_", "").replace("-", "").isalnum() else '"' + k + '"'
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        if math.isnan(v):
+            return "nan"
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise CivicError(f"cannot write {v!r} to TOML")

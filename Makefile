@@ -1,0 +1,41 @@
+# CIVIC: `make demo` sets up and runs the main job; `make test` runs the tests.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+OUT    ?= out
+P4C    ?= p4c-bm2-ss
+
+.PHONY: demo test bench p4 clean venv
+
+venv: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $@
+
+# Train on the bundled recordings, compare modes leave-one-run-out, replay, score.
+demo: venv
+	mkdir -p $(OUT)
+	$(BIN)/civic train traces/training -o $(OUT)/entries.json
+	$(BIN)/civic crossval traces/training --json $(OUT)/crossval.json
+	$(BIN)/civic replay traces/training/*.pcap -o $(OUT)/replay --entries $(OUT)/entries.json
+	$(BIN)/civic evaluate $(OUT)/replay --labels traces/training/labels.csv \
+		--entries $(OUT)/entries.json --json $(OUT)/scores.json
+
+test: venv
+	$(BIN)/python -m pytest -q -rs
+
+bench: venv
+	$(BIN)/python -m bench
+
+# Compile the v1model program for BMv2 (needs p4c; see p4src/README.md).
+p4:
+	@command -v $(P4C) >/dev/null 2>&1 || { echo "make p4: $(P4C) not found on PATH (install p4c, see p4src/README.md)"; exit 1; }
+	mkdir -p build/v1model
+	$(P4C) --std p4-16 --arch v1model -o build/v1model/civic.json \
+		--p4runtime-files build/v1model/civic.p4info.txtpb p4src/v1model/civic.p4
+
+clean:
+	rm -rf $(OUT) build

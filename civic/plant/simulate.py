@@ -512,7 +512,9 @@ def load_recording(path, model: PlantModel) -> Recording:
         wires = set(model.wire_fields)
         names = set(model.input_names) | set(model.signal_names)
         t = data["t_s"] - data["t_s"][0]
-        if cols & names:
+        sensor_wires = {s.wire for s in model.sensors if s.wire}
+        wire_mode = bool(cols & sensor_wires) or (wires and wires <= cols)
+        if cols & names and not wire_mode:
             sig = {c: np.asarray(data[c], float) for c in cols & names}
             return Recording(t, sig, {}, path)
         if cols & wires:
@@ -532,10 +534,12 @@ def load_recording(path, model: PlantModel) -> Recording:
     return Recording(msgs["t"] - msgs["t"][0], from_wire(model, fields), fields, path)
 
 
-def initial_state(model: PlantModel, signals: dict, n_init: int = 1, total_volume: float | None = None) -> dict:
+def initial_state(model: PlantModel, signals: dict, n_init: int = 1, total_volume: float | None = None,
+                  average: int = 1) -> dict:
     """Initial state from the first samples of a recording.
 
-    Measured tanks: the mean of the first n_init samples (inverting gain/offset).
+    Measured tanks: the first sample (the mean of the first `average` samples),
+    inverting gain/offset.
     Valves: their first command. Unmeasured tanks: when total_volume is given and
     exactly one tank is unmeasured, by mass balance; otherwise by least squares
     over the first n_init samples (a short simulation per candidate, scalar search).
@@ -545,7 +549,7 @@ def initial_state(model: PlantModel, signals: dict, n_init: int = 1, total_volum
     for s in model.sensors:
         if s.name not in signals:
             continue
-        y = np.asarray(signals[s.name], float)[:n_init]
+        y = np.asarray(signals[s.name], float)[:max(1, int(average))]
         q = (np.mean(y) - s.offset) / s.gain if s.gain else 0.0
         tank = model.tank(s.tank)
         x0[s.tank] = q * tank.area if s.quantity == "level" else q

@@ -1,0 +1,249 @@
+"""civic simulate: the plant simulator (test procedures, closed loop, open loop on recorded inputs)."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from civic.errors import CivicError
+
+EPOCH = 1767225600.0          # 2026-01-01T00:00:00Z, as in the recorded cases
+WIRE_COLUMNS = ("l1", "l2", "l3", "l4", "p1", "v1", "v2")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("simulate", help="simulate the plant: drain/fill tests, closed loop, or recorded inputs",
+                       description="Simulate the plant model. SCENARIO is drain, fill or closed-loop; "
+                                   "with --inputs or --like the model is run open loop on recorded commands.")
+    p.add_argument("scenario", nargs="?", choices=("drain", "fill", "closed-loop"), metavar="SCENARIO",
+                   help="drain | fill | closed-loop")
+    p.add_argument("--model", metavar="FILE", help="model file (default: configs/plant.toml)")
+    p.add_argument("--v0", type=float, help="start volume of T1..T3, L (drain 7.5, fill 3.0)")
+    p.add_argument("--fault", metavar="vmN=C", help="manual valve closure, e.g. vm1=0.3 or vm2=warning")
+    p.add_argument("--controller", choices=("mpc", "pi"), default="mpc")
+    p.add_argument("--duration", type=float, metavar="S", help="seconds (drain 18, fill 40, closed loop 600)")
+    p.add_argument("--seed", type=int, help="random seed (noise, schedule)")
+    p.add_argument("--no-noise", action="store_true", help="no sensor noise: deterministic output")
+    p.add_argument("--src-ip", default="10.0.0.1", help="gateway address in the pcap (default 10.0.0.1)")
+    p.add_argument("-o", "--output", metavar="OUT.pcap|OUT.csv")
+    p.add_argument("--plot", metavar="OUT.png")
+    p.add_argument("--labels", metavar="LABELS.csv", help="append a labels row (drain/fill)")
+    p.add_argument("--inputs", metavar="IN.csv|IN.pcap", help="open loop on these recorded commands")
+    p.add_argument("--like", metavar="REC.pcap", help="replay a recording's commands and start state; RMSE table")
+    p.add_argument("--init-samples", type=int, default=1, metavar="N",
+                   help="samples used to estimate unmeasured states (RMSE is over the samples after N)")
+    p.set_defaults(func=run)
+
+
+def default_model_path() -> Path:
+    here = Path("configs/plant.toml")
+    if here.exists():
+        return here
+    return Path(__file__).resolve().parents[2] / "configs" / "plant.toml"
+
+
+def run(args) -> int:
+    from civic.plant.model import PlantModel
+
+    model = PlantModel.from_toml(args.model or default_model_path())
+    if args.inputs and args.like:
+        raise CivicError("give --inputs or --like, not both")
+    if args.inputs or args.like:
+        if args.scenario:
+            raise CivicError("SCENARIO and --inputs/--like exclude each other")
+        return _open_loop(args, model)
+    if not args.scenario:
+        raise CivicError("give a SCENARIO (drain, fill, closed-loop) or --inputs/--like")
+    if not args.output:
+        raise CivicError("-o OUT.pcap|OUT.csv is required")
+    _check_output(args.output)
+    if args.duration is not None and not args.duration > 0:
+        raise CivicError("--duration must be > 0")
+    from civic.plant.procedures import (append_label, label_row, make_procedure, parse_fault,
+                                        apply_faults, run_procedure)
+
+    faults = parse_fault(args.fault)
+    noise = not args.no_noise
+    if args.scenario == "closed-loop":
+        if args.v0 is not None:
+            raise CivicError("--v0 applies to the drain and fill tests only")
+        if args.labels:
+            raise CivicError("--labels applies to the drain and fill tests only")
+        from civic.plant.control import run_closed_loop
+
+        m = apply_faults(model, faults) if faults else model
+        duration = 600.0 if args.duration is None else args.duration
+        with _progress(duration) as prog:
+            res = run_closed_loop(m, duration, controller=args.controller, seed=args.seed, noise=noise,
+                                  progress=prog)
+        t, signals = res.t, res.signals
+        extra = f", {sum(1 for o in res.operation if o[1].endswith(':run'))} embedded test(s)"
+    else:
+        if args.controller != "mpc":
+            raise CivicError("--controller applies to closed-loop only")
+        proc = make_procedure(model, args.scenario, args.v0, faults, args.duration)
+        signals = run_procedure(proc, noise=noise, seed=args.seed)
+        t = proc.t
+        extra = f", v0 {proc.v0:g} L, closure {proc.closure:g}"
+    _write(args.output, model, t, signals, args.src_ip, args.seed)
+    if args.labels:
+        append_label(args.labels, label_row(Path(args.output).name, proc, args.seed, args.src_ip))
+    if args.plot:
+        _plot_run(args.plot, model, t, signals, f"{args.scenario} ({model.name})")
+    print(f"simulated {args.scenario}: {len(t)} samples ({t[-1] + model.dt:g} s){extra} -> {args.output}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------
+def _check_output(path: str) -> None:
+    if not (path.endswith(".pcap") or path.endswith(".csv")):
+        raise CivicError(f"{path}: output must end in .pcap or .csv")
+    parent = Path(path).parent
+    if not parent.is_dir():
+        raise CivicError(f"{path}: folder {parent} does not exist")
+
+
+class _progress:
+    """A rich progress bar on a terminal for long runs; silent otherwise."""
+
+    def __init__(self, duration: float):
+        self.on = duration >= 120 and sys.stderr.isatty()
+
+    def __enter__(self):
+        if not self.on:
+            return None
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TimeRemainingColumn
+
+        self.p = Progress("simulating", BarColumn(), "{task.percentage:>3.0f}%", TimeRemainingColumn(),
+                          console=Console(stderr=True), transient=True)
+        self.p.__enter__()
+        self.task = self.p.add_task("sim", total=1.0)
+        return lambda k, n: self.p.update(self.task, completed=k / max(n, 1))
+
+    def __exit__(self, *exc):
+        if self.on:
+            self.p.__exit__(*exc)
+        return False
+
+
+def _write(path: str, model, t, signals, src_ip: str, seed) -> None:
+    from civic.plant.simulate import to_wire
+
+    fields = to_wire(model, signals)
+    has_wire = all(c in fields for c in WIRE_COLUMNS)
+    try:
+        if path.endswith(".pcap"):
+            if not has_wire:
+                raise CivicError(f"model {model.name} does not map to the plant message (l1..v2); write a .csv")
+            from civic.wire import build_frames, write_pcap
+
+            seq0 = int(np.random.default_rng(seed).integers(0, 2**32)) if seed is not None else 0
+            frames = build_frames({c: fields[c] for c in WIRE_COLUMNS}, src_ip=src_ip, seq0=seq0)
+            write_pcap(path, EPOCH + np.asarray(t), frames)
+        elif has_wire:
+            cols = np.column_stack([np.asarray(t)] + [fields[c] for c in WIRE_COLUMNS])
+            with open(path, "w") as fh:
+                fh.write("t_s," + ",".join(WIRE_COLUMNS) + "\n")
+                for row in cols:
+                    fh.write(f"{row[0]:.10g}," + ",".join(str(int(v)) for v in row[1:]) + "\n")
+        else:
+            names = [n for n in model.input_names + model.signal_names if n in signals]
+            cols = np.column_stack([np.asarray(t)] + [signals[n] for n in names])
+            np.savetxt(path, cols, delimiter=",", header="t_s," + ",".join(names), comments="", fmt="%.10g")
+    except OSError as exc:
+        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
+
+
+def _open_loop(args, model) -> int:
+    from civic.plant.simulate import initial_state, load_recording, simulate
+
+    src = args.inputs or args.like
+    rec = load_recording(src, model)
+    n = len(rec.t)
+    if n < 2:
+        raise CivicError(f"{src}: needs at least 2 samples")
+    step = np.median(np.diff(rec.t))
+    if abs(step - model.dt) > 0.01 * model.dt:
+        raise CivicError(f"{src}: sample time {step:g} s differs from the model's dt {model.dt:g} s")
+    missing = [i for i in model.input_names if i not in rec.signals]
+    if missing:
+        raise CivicError(f"{src}: no column for input(s) {', '.join(missing)}")
+    N = args.init_samples
+    if not 1 <= N < n:
+        raise CivicError(f"--init-samples must lie in 1..{n - 1}")
+    if args.output:
+        _check_output(args.output)
+    t = np.arange(n) * model.dt
+    init = {k: np.asarray(v)[:N] for k, v in rec.signals.items()}
+    x0 = initial_state(model, init, N)
+    sim = simulate(model, t, {k: rec.signals[k] for k in model.input_names}, x0)
+    rows = []
+    for name in model.signal_names:
+        if name in rec.signals:
+            e = sim[name][N:] - np.asarray(rec.signals[name])[N:]
+            rows.append((name, float(np.sqrt(np.mean(e ** 2))), float(np.max(np.abs(e)))))
+    print(f"open loop on {src}: {n} samples, initial state from the first sample"
+          + (f", unmeasured states from the first {N}" if N > 1 else ""))
+    print("x0: " + ", ".join(f"{k}={v:.4g}" for k, v in x0.items()))
+    print(f"{'signal':<8} {'RMSE':>10} {'max |err|':>10}   (samples {N}..{n - 1})")
+    for name, r, mx in rows:
+        print(f"{name:<8} {r:>10.4g} {mx:>10.4g}")
+    if args.output:
+        _write(args.output, model, t, sim, args.src_ip, args.seed)
+        print(f"-> {args.output}")
+    if args.plot:
+        _plot_compare(args.plot, model, t, rec.signals, sim, Path(src).name)
+    return 0
+
+
+def _plot_run(path, model, t, signals, title):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for name in model.signal_names:
+        a1.plot(t, signals[name], label=name, lw=1)
+    a1.set_ylabel("sensor")
+    a1.legend(loc="best", fontsize=8)
+    for name in model.input_names:
+        a2.plot(t, signals[name], label=name, lw=1)
+    a2.set_ylabel("command")
+    a2.set_xlabel("t (s)")
+    a2.legend(loc="best", fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=110)
+    except OSError as exc:
+        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
+    plt.close(fig)
+
+
+def _plot_compare(path, model, t, recorded, sim, title):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [n for n in model.signal_names if n in recorded]
+    fig, axes = plt.subplots(len(names) + 1, 1, figsize=(9, 2.2 * (len(names) + 1)), sharex=True, squeeze=False)
+    for ax, name in zip(axes[:, 0], names):
+        ax.plot(t, recorded[name], lw=0.8, color="0.5", label="recorded")
+        ax.plot(t, sim[name], lw=1.2, color="C0", label="simulated")
+        ax.set_ylabel(name)
+        ax.legend(loc="best", fontsize=8)
+    ax = axes[-1, 0]
+    for name in model.input_names:
+        ax.plot(t, sim[name], lw=1, label=name)
+    ax.set_ylabel("command")
+    ax.set_xlabel("t (s)")
+    ax.legend(loc="best", fontsize=8)
+    fig.suptitle(f"{title}: recorded vs {model.name}")
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=110)
+    except OSError as exc:
+        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
+    plt.close(fig)

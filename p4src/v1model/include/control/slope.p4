@@ -1,0 +1,28 @@
+/*
+ * CIVIC v1model -- slope estimators (docs/pipeline.md section 3).
+ *
+ *   endpoint: slope = x - old                 (old = x[n - W + 1], R = W - 1)
+ *   lsq:      slope = (W - 1) * s0 - 2 * s1   (R = W; twice the least-
+ *             squares numerator; the switch never divides, the class
+ *             ranges are scaled instead)
+ *
+ * Both are signed 32-bit values computed in bit<32> modular arithmetic,
+ * which is two's complement: x - old < 0 wraps to 2^32 - |x - old|.
+ * slope_key = slope XOR SLOPE_BIAS is the order-preserving unsigned key of
+ * the class table. BMv2 multiplies at run time, so W comes from set_config.
+ */
+#ifndef _CIVIC_V1MODEL_SLOPE_P4_
+#define _CIVIC_V1MODEL_SLOPE_P4_
+
+control Slope(inout monitor_md_t m) {
+    apply {
+        if (m.lsq == 1) {
+            m.slope = ((bit<32>)m.window - 1) * m.s0 - (m.s1 << 1);
+        } else {
+            m.slope = (bit<32>)m.x - (bit<32>)m.old;
+        }
+        m.slope_key = m.slope ^ SLOPE_BIAS;
+    }
+}
+
+#endif  /* _CIVIC_V1MODEL_SLOPE_P4_ */

@@ -1,0 +1,379 @@
+"""The BMv2 replay target: run captures through `simple_switch_grpc` and collect its output.
+
+Layout (everything torn down again, whatever happens):
+
+    host namespace                     network namespace civic-XXXX
+    ---------------                    ------------------------------------------
+    P4Runtime client  -- veth /30 -->  ctl  simple_switch_grpc --grpc-server-addr ctl:9559
+                                            port 1 = sw1 <-veth-> h1  (frames sent here)
+                                            port 2 = sw2 <-veth-> h2  (output captured here)
+
+The switch runs inside its own namespace because BMv2's Thrift server (when
+built in) always binds 0.0.0.0:9090 and nothing else may be on its data
+ports. The client reaches the gRPC server over a dedicated veth pair with a
+link-local /30. The frame sockets (AF_PACKET on h1 and h2) are opened by a
+helper thread that enters the namespace with setns(2); a socket stays in the
+namespace it was created in, so the rest of the process never changes namespace.
+IPv6 is disabled in the namespace so the kernel itself sends nothing on the ports.
+
+Frames are sent one at a time (lockstep): frame i is sent on port 1 and the
+next frame waits until the switch's output for it appeared on port 2, or until
+`frame_timeout` passed (the frame was not forwarded: reported in `missing`).
+That keeps the input order exact without relying on timestamps.
+"""
+from __future__ import annotations
+
+import copy
+import ctypes
+import os
+import secrets
+import select
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from civic import p4runtime as p4rt
+from civic.entries import load_entries
+from civic.errors import CivicError
+from civic.wire import Capture, decode_frames, read_pcap, write_pcap
+
+SWITCH_BINARY = "simple_switch_grpc"
+GRPC_PORT = 9559
+CLONE_NEWNET = 0x40000000
+ETH_P_ALL = 0x0003
+PACKET_OUTGOING = 4
+# bytes a switch may change in a plant message: UDP checksum and verdict
+MUTABLE = (14 + 20 + 6, 14 + 20 + 7, 14 + 20 + 8 + 18, 14 + 20 + 8 + 19)
+
+
+@dataclass
+class BMv2Output:
+    """What the switch did with one capture's frames."""
+
+    frames: list                     # per input frame: bytes seen on the output port, or None
+    capture: Capture | None = None   # the forwarded frames as a capture (input timestamps)
+    missing: list = field(default_factory=list)   # indices of input frames not forwarded
+
+    @property
+    def complete(self) -> bool:
+        return not self.missing
+
+
+def _run(cmd: list[str], what: str, check: bool = True) -> subprocess.CompletedProcess:
+    res = subprocess.run(cmd, capture_output=True, text=True)
+    if check and res.returncode != 0:
+        msg = (res.stderr or res.stdout).strip().splitlines()
+        raise CivicError(f"{what} failed: {' '.join(cmd)}: {msg[-1] if msg else f'exit {res.returncode}'}")
+    return res
+
+
+def _open_ns_sockets(netns: str, send_if: str, recv_if: str) -> tuple[socket.socket, socket.socket]:
+    """AF_PACKET sockets on interfaces inside `netns`, created from a thread that setns()es there."""
+    result: dict = {}
+
+    def worker():
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            with open(f"/var/run/netns/{netns}") as f:
+                if libc.setns(f.fileno(), CLONE_NEWNET) != 0:
+                    err = ctypes.get_errno()
+                    raise OSError(err, f"setns({netns}): {os.strerror(err)}")
+            tx = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, 0)     # protocol 0: never receives
+            tx.bind((send_if, 0))
+            rx = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETH_P_ALL))
+            rx.bind((recv_if, 0))
+            rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+            result["socks"] = (tx, rx)
+        except OSError as exc:
+            result["error"] = exc
+
+    t = threading.Thread(target=worker, name="civic-netns")
+    t.start()
+    t.join()
+    if "error" in result:
+        raise CivicError(f"cannot open packet sockets in namespace {netns}: {result['error']}")
+    return result["socks"]
+
+
+def _free_link_local() -> tuple[str, str]:
+    """Two addresses of an unused 169.254.X.Y/30 (host side, namespace side)."""
+    used = _run(["ip", "-4", "-o", "addr", "show"], "ip addr").stdout
+    for _ in range(64):
+        x = 64 + secrets.randbelow(190)
+        y = 4 * secrets.randbelow(63)
+        if x == 169 or f"169.254.{x}." in used:
+            continue
+        return f"169.254.{x}.{y + 1}", f"169.254.{x}.{y + 2}"
+    raise CivicError("no free 169.254.0.0/16 /30 for the switch control link")
+
+
+def _same_frame(out: bytes, inp: bytes) -> bool:
+    """out is inp, up to the bytes a switch may rewrite (verdict, UDP checksum)."""
+    if len(out) != len(inp):
+        return False
+    a, b = np.frombuffer(out, np.uint8).copy(), np.frombuffer(inp, np.uint8).copy()
+    idx = [i for i in MUTABLE if i < len(a)]
+    a[idx] = 0
+    b[idx] = 0
+    return bool(np.array_equal(a, b))
+
+
+class BMv2Switch:
+    """simple_switch_grpc in a fresh network namespace; use as a context manager."""
+
+    def __init__(self, pipeline_dir: str | Path, *, binary: str = SWITCH_BINARY, device_id: int = 0,
+                 startup_timeout: float = 20.0, log_path: str | Path | None = None,
+                 ports: tuple[int, int] = (1, 2)):
+        self.pipeline_dir = Path(pipeline_dir)
+        self.binary = binary
+        self.device_id = device_id
+        self.startup_timeout = startup_timeout
+        self.ports = ports
+        tag = secrets.token_hex(3)
+        self.netns = f"civic-{tag}"
+        self.host_if = f"cv{tag}h"          # <= 15 characters
+        self.tmp = Path(tempfile.mkdtemp(prefix=f"civic-bmv2-{tag}-"))
+        self.log_path = Path(log_path) if log_path else self.tmp / "switch.log"
+        self.proc: subprocess.Popen | None = None
+        self.conn: p4rt.SwitchConnection | None = None
+        self.tx = self.rx = None
+        self._netns_made = False
+        self._host_if_made = False
+
+    # -- lifecycle
+    def __enter__(self) -> "BMv2Switch":
+        try:
+            self.start()
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def start(self) -> None:
+        path = shutil.which(self.binary)
+        if path is None:
+            raise CivicError(f"{self.binary} not found on PATH: install BMv2 with P4Runtime support "
+                             "(behavioral-model built --with-pi)")
+        if shutil.which("ip") is None:
+            raise CivicError("'ip' (iproute2) not found on PATH: needed for the switch's network namespace")
+        if os.geteuid() != 0:
+            raise CivicError("the BMv2 target needs root (it creates a network namespace and veth pairs)")
+        pipe = p4rt.load_pipeline(self.pipeline_dir)
+        ns, ip = self.netns, ["ip"]
+        _run(ip + ["netns", "add", ns], "creating namespace")
+        self._netns_made = True
+        nsx = ip + ["netns", "exec", ns]
+        _run(nsx + ["sysctl", "-qw", "net.ipv6.conf.all.disable_ipv6=1",
+                    "net.ipv6.conf.default.disable_ipv6=1"], "disabling IPv6", check=False)
+        _run(ip + ["-n", ns, "link", "set", "dev", "lo", "up"], "namespace loopback")
+        for p in self.ports:
+            _run(ip + ["-n", ns, "link", "add", "name", f"sw{p}", "type", "veth", "peer", "name", f"h{p}"], "veth")
+            for dev in (f"sw{p}", f"h{p}"):
+                _run(ip + ["-n", ns, "link", "set", "dev", dev, "mtu", "9500"], "veth mtu", check=False)
+                _run(ip + ["-n", ns, "link", "set", "dev", dev, "up"], "veth up")
+                if shutil.which("ethtool"):
+                    _run(nsx + ["ethtool", "-K", dev, "tx", "off", "rx", "off", "gro", "off", "gso", "off",
+                                "tso", "off"], "ethtool", check=False)
+        host_ip, ns_ip = _free_link_local()
+        _run(ip + ["link", "add", "name", self.host_if, "type", "veth", "peer", "name", "ctl", "netns", ns],
+             "control veth")
+        self._host_if_made = True
+        _run(["sysctl", "-qw", f"net.ipv6.conf.{self.host_if}.disable_ipv6=1"], "sysctl", check=False)
+        _run(ip + ["addr", "add", f"{host_ip}/30", "dev", self.host_if], "control address")
+        _run(ip + ["link", "set", "dev", self.host_if, "up"], "control link up")
+        _run(ip + ["-n", ns, "addr", "add", f"{ns_ip}/30", "dev", "ctl"], "control address")
+        _run(ip + ["-n", ns, "link", "set", "dev", "ctl", "up"], "control link up")
+        self.address = f"{ns_ip}:{GRPC_PORT}"
+
+        helptext = _run([path, "--help"], "simple_switch_grpc --help", check=False)
+        helptext = (helptext.stdout or "") + (helptext.stderr or "")
+        cmd = nsx + [path, "--no-p4", "--device-id", str(self.device_id)]
+        for p in self.ports:
+            cmd += ["-i", f"{p}@sw{p}"]
+        if "--notifications-addr" in helptext:     # default ipc path in /tmp is shared by all namespaces
+            cmd += ["--notifications-addr", f"ipc://{self.tmp}/notifications.ipc"]
+        if "--thrift-port" in helptext:
+            cmd += ["--thrift-port", "9090"]
+        cmd += ["--", "--grpc-server-addr", self.address]
+        self._log = open(self.log_path, "wb")
+        self.proc = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                     start_new_session=True)
+        self.conn = self._connect()
+        self.tx, self.rx = _open_ns_sockets(ns, f"h{self.ports[0]}", f"h{self.ports[1]}")
+        self.pipeline = pipe
+        self.conn.set_pipeline(pipe.p4info, pipe.device_config, pipe.cookie)
+        self.schema = p4rt.P4Schema(pipe.p4info)
+
+    def _connect(self) -> p4rt.SwitchConnection:
+        deadline = time.monotonic() + self.startup_timeout
+        while True:
+            if self.proc.poll() is not None:
+                raise CivicError(f"{self.binary} exited with status {self.proc.returncode}: {self._log_tail()}")
+            conn = p4rt.SwitchConnection(self.address, self.device_id, election_id=1, timeout=1.0)
+            try:
+                conn.connect()
+                conn.require_primary()
+                return conn
+            except CivicError:
+                if time.monotonic() > deadline:
+                    raise CivicError(f"{self.binary} did not answer on {self.address} within "
+                                     f"{self.startup_timeout:g} s: {self._log_tail()}") from None
+                time.sleep(0.2)
+
+    def _log_tail(self) -> str:
+        try:
+            lines = [ln for ln in self.log_path.read_text(errors="replace").splitlines() if ln.strip()]
+        except OSError:
+            lines = []
+        return lines[-1].strip() if lines else f"no output (log {self.log_path})"
+
+    def stop(self) -> None:
+        """Stop what start() started and delete the namespace; safe to call at any point."""
+        for s in (self.tx, self.rx):
+            if s is not None:
+                s.close()
+        self.tx = self.rx = None
+        if self.conn is not None:
+            try:
+                self.conn.close()
+            except Exception:
+                pass
+            self.conn = None
+        if self.proc is not None:
+            if self.proc.poll() is None:
+                try:
+                    os.killpg(self.proc.pid, signal.SIGTERM)   # its own session: only what we started
+                except ProcessLookupError:
+                    pass
+                try:
+                    self.proc.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    try:
+                        os.killpg(self.proc.pid, signal.SIGKILL)
+                    except ProcessLookupError:
+                        pass
+                    self.proc.wait(timeout=5)
+            self.proc = None
+            self._log.close()
+        if self._host_if_made:
+            _run(["ip", "link", "del", "dev", self.host_if], "deleting control veth", check=False)
+            self._host_if_made = False
+        if self._netns_made:
+            _run(["ip", "netns", "delete", self.netns], "deleting namespace", check=False)
+            self._netns_made = False
+        if self.log_path.parent == self.tmp and not getattr(self, "keep_log", False):
+            shutil.rmtree(self.tmp, ignore_errors=True)
+
+    # -- use
+    def configure(self, entries_path: str | Path, reset: bool = False) -> p4rt.ConvergeResult:
+        """Install the entries; with reset, re-push the pipeline first (zeroes every register)."""
+        if reset:
+            self.conn.set_pipeline(self.pipeline.p4info, self.pipeline.device_config, self.pipeline.cookie)
+        return p4rt.converge(self.conn, load_entries(entries_path), self.schema)
+
+    def send_frames(self, frames: Sequence[bytes], frame_timeout: float = 1.0) -> list:
+        """Lockstep: each frame on port 1, its output from port 2 (None when not forwarded)."""
+        out: list = []
+        self._drain()
+        for i, frame in enumerate(frames):
+            frame = bytes(frame)
+            try:
+                self.tx.send(frame)
+            except OSError as exc:
+                raise CivicError(f"frame {i} ({len(frame)} bytes) cannot be sent on a veth: {exc.strerror}") from None
+            got = self._recv(frame_timeout)
+            if got is not None:
+                late = [j for j in range(max(0, i - 8), i) if out[j] is None and _same_frame(got, bytes(frames[j]))]
+                if late and not _same_frame(got, frame):
+                    raise CivicError(f"output of frame {late[-1]} arrived after {frame_timeout:g} s; "
+                                     "raise frame_timeout")
+            out.append(got)
+        return out
+
+    def _recv(self, timeout: float) -> bytes | None:
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return None
+            ready, _, _ = select.select([self.rx], [], [], left)
+            if not ready:
+                return None
+            data, addr = self.rx.recvfrom(65535)
+            if addr[2] != PACKET_OUTGOING:
+                return data
+
+    def _drain(self) -> None:
+        while select.select([self.rx], [], [], 0)[0]:
+            self.rx.recv(65535)
+
+
+def output_capture(capture: Capture, frames: list, udp_port: int, plant_prefix: str) -> Capture:
+    """The forwarded frames as a Capture with the input frames' timestamps (missing ones left out).
+
+    When every frame came out with its input's length (the normal case) this is a copy of the
+    input capture with the frames patched in place, so the pcap headers stay byte-identical.
+    """
+    if len(frames) != len(capture):
+        raise CivicError(f"{len(frames)} output frames for {len(capture)} input frames")
+    if all(f is not None and len(f) == int(capture.caplen[i]) for i, f in enumerate(frames)):
+        out = copy.deepcopy(capture)
+        for i, f in enumerate(frames):
+            o = int(out.offset[i])
+            out.data[o:o + len(f)] = f
+        t = out.messages["t"].copy()
+        out.messages = decode_frames(out.data, out.offset, out.caplen, udp_port, plant_prefix)
+        out.messages["t"] = t
+        return out
+    keep = [i for i, f in enumerate(frames) if f is not None]
+    with tempfile.TemporaryDirectory(prefix="civic-bmv2-out-") as tmp:
+        path = Path(tmp) / "out.pcap"
+        write_pcap(path, capture.messages["t"][keep], [frames[i] for i in keep])
+        out = read_pcap(path, udp_port, plant_prefix)
+    out.path = capture.path
+    return out
+
+
+def replay_bmv2(captures: Sequence[Capture], entries_path: str | Path, pipeline_dir: str | Path, *,
+                reset_between: bool = True, frame_timeout: float = 1.0, startup_timeout: float = 20.0,
+                binary: str = SWITCH_BINARY, log_path: str | Path | None = None) -> list[BMv2Output]:
+    """Replay captures through BMv2 (simple_switch_grpc) and return what came out, in input order.
+
+    captures:      `civic.wire.Capture`s (e.g. from `read_pcap`); every frame of each is sent on
+                   switch port 1, in order, one at a time.
+    entries_path:  an entries JSON (docs/pipeline.md section 6) installed with `civic configure`'s
+                   converge; it also gives udp_port / plant_prefix for decoding the output.
+    pipeline_dir:  directory with civic.json (BMv2 JSON) and civic.p4info.txtpb from p4c-bm2-ss.
+    reset_between: re-push the pipeline before each capture, so every capture starts from zeroed
+                   registers like `SwitchModel(entries).run(...)`; False carries state across captures.
+    frame_timeout: seconds to wait for a frame's output on port 2 before declaring it not forwarded.
+
+    Returns one `BMv2Output` per capture: `.frames[i]` is the bytes port 2 emitted for input frame i
+    (None if nothing came out), `.missing` lists those i, `.capture` holds the forwarded frames as a
+    Capture with the input timestamps (write it with `.write(path)`).
+    Needs root and `simple_switch_grpc` on PATH; the namespace, veths and switch process are removed
+    in all cases. Raises CivicError on any failure (one line).
+    """
+    entries = load_entries(entries_path)
+    p4rt.desired_state(entries, p4rt.P4Schema(p4rt.load_pipeline(pipeline_dir).p4info))  # fail fast
+    results = []
+    with BMv2Switch(pipeline_dir, binary=binary, startup_timeout=startup_timeout, log_path=log_path) as sw:
+        for n, cap in enumerate(captures):
+            sw.configure(entries_path, reset=reset_between and n > 0)
+            frames = sw.send_frames([cap.frame(i) for i in range(len(cap))], frame_timeout)
+            missing = [i for i, f in enumerate(frames) if f is None]
+            results.append(BMv2Output(frames=frames, missing=missing,
+                                      capture=output_capture(cap, frames, entries.udp_port, entries.plant_prefix)))
+    return results

@@ -1,0 +1,242 @@
+"""The BMv2 replay target.
+
+`test_bmv2_matches_model` is the real thing: it compiles p4src/v1model/civic.p4
+with p4c-bm2-ss, runs simple_switch_grpc and checks every output frame is
+byte-identical to the software model. It is skipped unless both tools are on
+PATH and we are root.
+
+The plumbing tests run `civic.bmv2` against a *stand-in process* (a small
+Python script installed as `simple_switch_grpc` on a temporary PATH; it is not
+a switch and computes no verdicts): it serves the P4Runtime servicer fixture
+of test_p4runtime.py on the address it is given and copies frames from port 1
+to port 2, flipping one byte and dropping broadcast frames. That checks the
+namespace, the control link, the packet sockets, lockstep ordering, reporting
+of frames that were not forwarded, and clean-up, without BMv2.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from civic.errors import CivicError
+
+pytestmark = pytest.mark.bmv2
+
+ROOT = Path(__file__).resolve().parent.parent
+TESTS = Path(__file__).resolve().parent
+FIXTURE_P4INFO = TESTS / "fixtures" / "civic.p4info.txtpb"
+IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
+HAVE_IP = shutil.which("ip") is not None
+HAVE_BMV2 = shutil.which("p4c-bm2-ss") is not None and shutil.which("simple_switch_grpc") is not None
+
+needs_netns = pytest.mark.skipif(not (IS_ROOT and HAVE_IP and sys.platform == "linux"),
+                                 reason="needs root and iproute2 on Linux (network namespaces)")
+
+
+def netns_names() -> set:
+    out = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    return {line.split()[0] for line in out.splitlines() if line.strip()}
+
+
+def host_links() -> set:
+    out = subprocess.run(["ip", "-o", "link", "show"], capture_output=True, text=True).stdout
+    return {line.split(":")[1].strip().split("@")[0] for line in out.splitlines()}
+
+
+def entries_json(tmp_path) -> Path:
+    from test_p4runtime import ENTRIES, entries_file
+    return entries_file(tmp_path)
+
+
+# ---------------------------------------------------------------- stand-in process
+STAND_IN = textwrap.dedent('''\
+    #!{python}
+    # Stand-in for simple_switch_grpc in tests/test_bmv2.py: NOT a switch.
+    import os, socket, sys, threading, time
+    from concurrent import futures
+    sys.path.insert(0, {tests!r})
+    if "--help" in sys.argv:
+        print("stand-in usage: --thrift-port --device-id -i --no-p4"); sys.exit(0)
+    with open(os.environ["STAND_IN_PIDFILE"], "a") as f:
+        f.write(f"{{os.getpid()}}\\n")
+    if os.environ.get("STAND_IN_FAIL"):
+        print("Error: stand-in refuses to start (test)", flush=True); sys.exit(3)
+    import grpc
+    from p4.v1 import p4runtime_pb2_grpc
+    from test_p4runtime import P4RuntimeFixture
+    ports = dict(a.split("@") for a in [sys.argv[i + 1] for i, x in enumerate(sys.argv) if x == "-i"])
+    addr = sys.argv[sys.argv.index("--grpc-server-addr") + 1]
+    fx = P4RuntimeFixture(None)
+    server = grpc.server(futures.ThreadPoolExecutor(max_workers=4))
+    p4runtime_pb2_grpc.add_P4RuntimeServicer_to_server(fx, server)
+    server.add_insecure_port(addr)
+    server.start()
+    rx = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(3)); rx.bind((ports["1"], 0))
+    tx = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, 0); tx.bind((ports["2"], 0))
+    print("stand-in ready", addr, flush=True)
+    while True:
+        data, meta = rx.recvfrom(65535)
+        if meta[2] == 4 or data[0] == 0xFF:      # outgoing, or broadcast: not forwarded
+            continue
+        if len(data) >= 62:
+            data = data[:61] + bytes([data[61] ^ 0x5A]) + data[62:]
+        tx.send(data)
+''')
+
+
+@pytest.fixture
+def stand_in(tmp_path, monkeypatch):
+    bindir = tmp_path / "bin"
+    bindir.mkdir()
+    exe = bindir / "simple_switch_grpc"
+    exe.write_text(STAND_IN.format(python=sys.executable, tests=str(TESTS)))
+    exe.chmod(0o755)
+    pidfile = tmp_path / "pids"
+    pidfile.write_text("")
+    monkeypatch.setenv("PATH", f"{bindir}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("STAND_IN_PIDFILE", str(pidfile))
+    build = tmp_path / "build"
+    build.mkdir()
+    (build / "civic.json").write_text('{"stand-in": true}')
+    (build / "civic.p4info.txtpb").write_text(FIXTURE_P4INFO.read_text())
+    return build, pidfile
+
+
+@pytest.fixture
+def made(monkeypatch):
+    """The BMv2Switch objects started during the test (to check their namespace is gone)."""
+    from civic.bmv2 import BMv2Switch
+    started = []
+    orig = BMv2Switch.start
+
+    def spy(self):
+        started.append(self)
+        return orig(self)
+
+    monkeypatch.setattr(BMv2Switch, "start", spy)
+    return started
+
+
+def left_behind(switches) -> list:
+    """Namespaces / host links of these switches that still exist (other test runs may add their own)."""
+    ns, links = netns_names(), host_links()
+    return [s.netns for s in switches if s.netns in ns] + [s.host_if for s in switches if s.host_if in links]
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # a zombie is not running either
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+@needs_netns
+def test_plumbing_order_missing_and_cleanup(stand_in, tmp_path, made):
+    from frames import plant
+
+    from civic.bmv2 import replay_bmv2
+    from civic.wire import read_pcap, write_pcap
+
+    build, pidfile = stand_in
+    frames = [bytes(plant(seq=i + 1, l3=5000 + i)) for i in range(12)]
+    frames.insert(5, b"\xff" * 6 + frames[0][6:])                  # broadcast: the stand-in drops it
+    frames.append(bytes(plant(seq=99)) + b"\xee" * 7)              # trailer bytes survive
+    write_pcap(tmp_path / "a.pcap", np.arange(len(frames)) * 0.1, frames)
+    write_pcap(tmp_path / "b.pcap", np.arange(3) * 0.1, frames[:3])
+    caps = [read_pcap(tmp_path / "a.pcap"), read_pcap(tmp_path / "b.pcap")]
+
+    out = replay_bmv2(caps, entries_json(tmp_path), build, frame_timeout=0.3, startup_timeout=15)
+
+    assert [o.missing for o in out] == [[5], []]
+    for o, cap in zip(out, caps):
+        for i in range(len(cap)):
+            sent = cap.frame(i)
+            if i in o.missing:
+                assert o.frames[i] is None
+                continue
+            want = sent[:61] + bytes([sent[61] ^ 0x5A]) + sent[62:]
+            assert o.frames[i] == want, i                          # in input order, byte for byte
+    a = out[0].capture
+    assert len(a) == len(caps[0]) - 1 and a.frame(len(a) - 1).endswith(b"\xee" * 7)
+    assert np.array_equal(a.messages["t"], np.delete(caps[0].messages["t"], 5))
+    assert np.array_equal(a.messages["verdict"][:5], np.full(5, 0x5A))
+    # nothing left behind
+    assert len(made) == 1 and left_behind(made) == []
+    pids = [int(p) for p in pidfile.read_text().split()]
+    assert len(pids) == 1 and not alive(pids[0])
+
+
+@needs_netns
+def test_switch_that_dies_is_reported_and_cleaned_up(stand_in, tmp_path, monkeypatch, made):
+    from civic.bmv2 import replay_bmv2
+    build, _ = stand_in
+    monkeypatch.setenv("STAND_IN_FAIL", "1")
+    with pytest.raises(CivicError, match=r"simple_switch_grpc exited with status 3: Error: stand-in refuses"):
+        replay_bmv2([], entries_json(tmp_path), build, startup_timeout=10)
+    assert len(made) == 1 and made[0].netns.startswith("civic-") and left_behind(made) == []
+
+
+def test_missing_switch_binary_is_one_line_error(tmp_path, monkeypatch):
+    from civic.bmv2 import replay_bmv2
+    build = tmp_path / "build"
+    build.mkdir()
+    (build / "civic.json").write_text("{}")
+    (build / "civic.p4info.txtpb").write_text(FIXTURE_P4INFO.read_text())
+    monkeypatch.setenv("PATH", str(tmp_path))
+    with pytest.raises(CivicError, match="simple_switch_grpc not found on PATH"):
+        replay_bmv2([], entries_json(tmp_path), build)
+
+
+# ---------------------------------------------------------------- real BMv2
+@pytest.mark.skipif(not HAVE_BMV2, reason="p4c-bm2-ss and simple_switch_grpc not both on PATH")
+@pytest.mark.skipif(not IS_ROOT, reason="BMv2 replay needs root (network namespace)")
+def test_bmv2_matches_model(tmp_path, trained_entries):
+    from frames import junk_frames, plant
+
+    from civic.bmv2 import replay_bmv2
+    from civic.entries import load_entries
+    from civic.pipeline import SwitchModel
+    from civic.wire import read_pcap, write_pcap
+
+    build = tmp_path / "build"
+    build.mkdir()
+    res = subprocess.run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(build / "civic.json"),
+                          "--p4runtime-files", str(build / "civic.p4info.txtpb"),
+                          str(ROOT / "p4src" / "v1model" / "civic.p4")], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    entries_path = tmp_path / "entries.json"
+    trained_entries.save(entries_path)
+    entries = load_entries(entries_path)
+
+    caps = [read_pcap(p) for p in sorted((ROOT / "traces" / "training").glob("*.pcap"))]
+    crafted = []
+    for i in range(30):                       # plant messages with junk in between
+        crafted.append(bytes(plant(seq=i + 1, l3=6000 - 40 * i, v2=1000)))
+        if i % 3 == 0:
+            crafted.append(junk_frames()[(i // 3) % len(junk_frames())])
+    crafted += junk_frames()
+    crafted.append(bytes(plant(seq=31, l3=4000, v2=1000)) + b"\x00" * 6)     # Ethernet trailer
+    crafted.append(bytes(plant(src="10.0.1.1", seq=1)))                       # outside the plant prefix
+    crafted.append(bytes(plant(seq=32, dport=50001)))                         # wrong port
+    write_pcap(tmp_path / "crafted.pcap", np.arange(len(crafted)) * 0.1, crafted)
+    caps.append(read_pcap(tmp_path / "crafted.pcap"))
+
+    outputs = replay_bmv2(caps, entries_path, build)
+    for cap, out in zip(caps, outputs):
+        assert out.missing == [], f"{cap.path}: frames {out.missing[:5]} not forwarded"
+        expect = read_pcap(cap.path, entries.udp_port, entries.plant_prefix)
+        expect.set_verdicts(SwitchModel(entries).run(expect.messages))
+        for i in range(len(expect)):
+            assert out.frames[i] == expect.frame(i), f"{cap.path} frame {i}"

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import ipaddress
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -84,17 +84,17 @@ def parse_prefix(text: str) -> tuple[int, int]:
 
 @dataclass
 class Capture:
-    """A pcap file in memory: raw bytes, record layout and decoded messages."""
+    """A pcap file in memory: its bytes, where each frame is, and the decoded messages.
 
-    header: bytes
-    data: bytearray                 # every record's frame bytes, back to back
-    rec_header: np.ndarray          # (n, 16) uint8, the per-record pcap headers
+    Frames are patched in place (`set_verdicts`); writing gives the file back
+    byte-identical except for what was patched.
+    """
+
+    data: bytearray                 # the whole file
     offset: np.ndarray              # int64 start of each frame in `data`
     caplen: np.ndarray              # uint32 captured length of each frame
     messages: np.ndarray            # MESSAGE_DTYPE, one row per record
     path: str = ""
-    frac_per_s: int = 1_000_000
-    extra: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.offset)
@@ -104,39 +104,27 @@ class Capture:
 
     def set_verdicts(self, verdict: np.ndarray) -> None:
         """Write verdicts into the plant messages, updating UDP checksums (RFC 1624)."""
-        idx = np.flatnonzero(self.messages["plant"])
-        new = np.asarray(verdict, dtype=np.uint32)[idx]
-        old = self.messages["verdict"][idx].astype(np.uint32)
-        csum = self.messages["udp_csum"][idx].astype(np.uint32)
-        self.messages["udp_csum"][idx] = incremental_checksum(csum, old, new)
-        self.messages["verdict"][idx] = new
+        plant = self.messages["plant"]
+        idx = None if plant.all() else np.flatnonzero(plant)
+        pick = (lambda a: a) if idx is None else (lambda a: a[idx])
+        new = pick(np.asarray(verdict, dtype=np.uint32))
+        old = pick(self.messages["verdict"]).astype(np.uint32)
+        csum = incremental_checksum(pick(self.messages["udp_csum"]), old, new)
+        if idx is None:
+            self.messages["udp_csum"], self.messages["verdict"] = csum, new
+        else:
+            self.messages["udp_csum"][idx], self.messages["verdict"][idx] = csum, new
         buf = np.frombuffer(self.data, dtype=np.uint8)
-        off = self.offset[idx]
-        for base, values in ((OFF_VERDICT, new), (OFF_UDP_CSUM, self.messages["udp_csum"][idx])):
+        off = pick(self.offset)
+        for base, values in ((OFF_VERDICT, new), (OFF_UDP_CSUM, csum)):
             buf[off + base] = (values >> 8) & 0xFF
             buf[off + base + 1] = values & 0xFF
 
     def to_bytes(self) -> bytes:
-        if len(self) == 0:
-            return self.header
-        n = len(self)
-        lens = 16 + self.caplen.astype(np.int64)
-        out = np.empty(int(lens.sum()), dtype=np.uint8)
-        starts = np.concatenate(([0], np.cumsum(lens)[:-1]))
-        hdr_pos = starts[:, None] + np.arange(16)
-        out[hdr_pos] = self.rec_header
-        src = np.frombuffer(self.data, dtype=np.uint8)
-        if np.all(self.caplen == self.caplen[0]):
-            c = int(self.caplen[0])
-            out.reshape(n, 16 + c)[:, 16:] = src[self.offset[:, None] + np.arange(c)]
-        else:
-            for i in range(n):  # variable-length frames: one memcpy each
-                s, c = int(starts[i]) + 16, int(self.caplen[i])
-                out[s:s + c] = src[self.offset[i]:self.offset[i] + c]
-        return self.header + out.tobytes()
+        return bytes(self.data)
 
     def write(self, path: str | Path) -> None:
-        Path(path).write_bytes(self.to_bytes())
+        Path(path).write_bytes(self.data)
 
 
 def incremental_checksum(csum, old, new):
@@ -191,12 +179,30 @@ def _record_offsets(raw: memoryview, order: str, start: int, path: str) -> tuple
     return rec, caplen.astype(np.uint32)
 
 
-def _be(cols: np.ndarray) -> np.ndarray:
-    """Big-endian unsigned value from an (n, k) byte matrix."""
-    out = np.zeros(cols.shape[0], dtype=np.uint64)
-    for j in range(cols.shape[1]):
-        out = (out << np.uint64(8)) | cols[:, j].astype(np.uint64)
-    return out
+# the first FRAME_LEN bytes of a frame, as big-endian fields at their byte offsets
+HEAD_DTYPE = np.dtype({
+    "names": ["ethertype", "ver_ihl", "flags_frag", "proto", "src", "dport", "udp_len", "udp_csum",
+              "seq", *SIGNALS, "verdict"],
+    "formats": [">u2", "u1", ">u2", "u1", ">u4", ">u2", ">u2", ">u2", ">u4"] + [">u2"] * 8,
+    "offsets": [12, OFF_IP, OFF_IP + 6, OFF_IP + 9, OFF_IP + 12, OFF_UDP + 2, OFF_UDP + 4, OFF_UDP_CSUM,
+                OFF_PAYLOAD] + [OFF_PAYLOAD + 4 + 2 * j for j in range(8)],
+    "itemsize": FRAME_LEN,
+})
+
+
+def frame_heads(buf: np.ndarray, offset: np.ndarray, caplen: np.ndarray) -> np.ndarray:
+    """Every frame's first FRAME_LEN bytes viewed as HEAD_DTYPE; bytes past caplen read zeros."""
+    n = len(offset)
+    step = int(offset[1] - offset[0]) if n > 1 else 0
+    complete = bool(np.all(caplen >= FRAME_LEN))
+    if n > 1 and complete and step >= FRAME_LEN and np.all(np.diff(offset) == step):
+        # equal-sized records back to back (the usual capture): a zero-copy strided view
+        return np.ndarray(shape=(n,), dtype=HEAD_DTYPE, buffer=buf, offset=int(offset[0]), strides=(step,))
+    idx = np.minimum(offset[:, None] + np.arange(FRAME_LEN), len(buf) - 1)
+    head = buf[idx]
+    if not complete:
+        head *= np.arange(FRAME_LEN)[None, :] < caplen[:, None]
+    return head.view(HEAD_DTYPE).reshape(n)
 
 
 def decode_frames(data, offset: np.ndarray, caplen: np.ndarray, udp_port: int = DEFAULT_UDP_PORT,
@@ -206,32 +212,23 @@ def decode_frames(data, offset: np.ndarray, caplen: np.ndarray, udp_port: int = 
     msg = np.zeros(n, dtype=MESSAGE_DTYPE)
     if n == 0:
         return msg
-    buf = np.frombuffer(data, dtype=np.uint8)
-    # gather the first FRAME_LEN bytes of every frame; short frames read zeros
-    idx = offset[:, None] + np.arange(FRAME_LEN)
-    present = np.arange(FRAME_LEN)[None, :] < caplen[:, None]
-    head = np.zeros((n, FRAME_LEN), dtype=np.uint8)
-    head[present] = buf[np.minimum(idx, len(buf) - 1)][present]
-    ethertype = _be(head[:, 12:14])
-    ihl = head[:, OFF_IP]
-    flags_frag = _be(head[:, OFF_IP + 6:OFF_IP + 8])
-    proto = head[:, OFF_IP + 9]
-    ipv4 = (caplen >= ETH_LEN + IPV4_LEN) & (ethertype == 0x0800) & (ihl == 0x45)
-    msg["src"] = np.where(ipv4, _be(head[:, OFF_IP + 12:OFF_IP + 16]), 0)
-    dport = _be(head[:, OFF_UDP + 2:OFF_UDP + 4])
-    udp_len = _be(head[:, OFF_UDP + 4:OFF_UDP + 6])
-    udp = ipv4 & (proto == 17) & ((flags_frag & 0x3FFF) == 0) & (caplen >= OFF_UDP + 8)
-    msg["dport"] = np.where(udp, dport, 0)
+    head = frame_heads(np.frombuffer(data, dtype=np.uint8), offset, caplen)
+    ipv4 = (caplen >= ETH_LEN + IPV4_LEN) & (head["ethertype"] == 0x0800) & (head["ver_ihl"] == 0x45)
+    udp = ipv4 & (head["proto"] == 17) & ((head["flags_frag"] & 0x3FFF) == 0) & (caplen >= OFF_UDP + 8)
     net, plen = parse_prefix(plant_prefix)
     mask = (0xFFFFFFFF << (32 - plen)) & 0xFFFFFFFF
-    in_prefix = (msg["src"].astype(np.uint64) & mask) == net
-    plant = udp & (dport == udp_port) & (udp_len == UDP_LEN) & (caplen >= FRAME_LEN) & in_prefix
+    plant = (udp & (head["dport"] == udp_port) & (head["udp_len"] == UDP_LEN) & (caplen >= FRAME_LEN)
+             & ((head["src"] & mask) == net))
     msg["plant"] = plant
-    msg["udp_csum"] = np.where(plant, _be(head[:, OFF_UDP_CSUM:OFF_UDP_CSUM + 2]), 0)
-    msg["seq"] = np.where(plant, _be(head[:, OFF_PAYLOAD:OFF_PAYLOAD + 4]), 0)
-    for j, name in enumerate(SIGNALS + ("verdict",)):
-        o = OFF_PAYLOAD + 4 + 2 * j
-        msg[name] = np.where(plant, _be(head[:, o:o + 2]), 0)
+    if plant.all():
+        msg["src"], msg["dport"] = head["src"], head["dport"]
+        for name in ("udp_csum", "seq", *SIGNALS, "verdict"):
+            msg[name] = head[name]
+        return msg
+    msg["src"] = np.where(ipv4, head["src"], 0)
+    msg["dport"] = np.where(udp, head["dport"], 0)
+    for name in ("udp_csum", "seq", *SIGNALS, "verdict"):
+        msg[name] = np.where(plant, head[name], 0)
     return msg
 
 
@@ -257,16 +254,13 @@ def read_pcap(path: str | Path, udp_port: int = DEFAULT_UDP_PORT,
     if linktype != LINKTYPE_ETHERNET:
         raise CivicError(f"{path}: link type {linktype} is not Ethernet (1)")
     rec, caplen = _record_offsets(memoryview(raw), order, 24, path)
-    arr = np.frombuffer(raw, dtype=np.uint8)
-    rec_header = arr[rec[:, None] + np.arange(16)] if len(rec) else np.zeros((0, 16), np.uint8)
     data = bytearray(raw)
     offset = rec + 16
     messages = decode_frames(data, offset, caplen, udp_port, plant_prefix)
-    ts = rec_header[:, 0:8].copy().view(order + "u4").reshape(-1, 2) if len(rec) else np.zeros((0, 2), np.uint32)
-    messages["t"] = ts[:, 0].astype(np.float64) + ts[:, 1].astype(np.float64) / frac
-    return Capture(header=raw[:24], data=data, rec_header=rec_header, offset=offset, caplen=caplen,
-                   messages=messages, path=path, frac_per_s=frac)
-
+    arr = np.frombuffer(raw, dtype=np.uint8)
+    ts = np.ascontiguousarray(arr[rec[:, None] + np.arange(8)]).view(order + "u4").reshape(-1, 2)
+    messages["t"] = ts[:, 0] + ts[:, 1] / frac
+    return Capture(data=data, offset=offset, caplen=caplen, messages=messages, path=path)
 
 def ipv4_checksum(headers: np.ndarray) -> np.ndarray:
     """Internet checksum of (n, 20) IPv4 header bytes with the checksum field zeroed."""

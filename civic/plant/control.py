@@ -171,9 +171,12 @@ class LinearMPC:
         self.F = Gam.T @ Qb @ Phi                   # q = F z0 - Dprev
         self.G = -(D.T @ Sb)[:, :3]                 # q += G (u_prev - us)
         self.prob = osqp.OSQP()
+        new_api = int(str(getattr(osqp, "__version__", "0")).split(".")[0]) >= 1
+        opts = dict(warm_starting=True, polishing=False) if new_api else dict(warm_start=True, polish=False)
         self.prob.setup(P=sp.csc_matrix(np.triu(H)), q=np.zeros(3 * N), A=sp.identity(3 * N, format="csc"),
-                        l=np.zeros(3 * N), u=np.ones(3 * N), verbose=False, warm_start=True,
-                        eps_abs=1e-4, eps_rel=1e-4, polish=False, max_iter=200)
+                        l=np.zeros(3 * N), u=np.ones(3 * N), verbose=False,
+                        eps_abs=1e-4, eps_rel=1e-4, max_iter=200, **opts)
+        self._solve = (lambda: self.prob.solve(raise_error=False)) if new_api else self.prob.solve
         # controller state
         self.queue = np.zeros(nd)        # applied pump commands not yet acting (absolute)
         self.a = np.zeros(2)             # predicted valve openings (absolute)
@@ -219,7 +222,7 @@ class LinearMPC:
         lo = self._lo
         lo.reshape(self.N, 3)[:] = -us
         self.prob.update(q=q, l=lo, u=lo + 1.0)
-        res = self.prob.solve()
+        res = self._solve()
         du = res.x[:3] if res.x is not None and np.all(np.isfinite(res.x[:3])) else np.zeros(3)
         u = np.clip(us + du, 0.0, 1.0)
         self.apply(u, y3)

@@ -1,0 +1,260 @@
+"""Plant simulator: physics, exactness, recordings, CLI (tests/plant)."""
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from civic.cli import main as civic_main
+from civic.plant.model import Link, PlantModel
+from civic.plant.procedures import make_procedure, monitor_slopes, run_procedure
+from civic.plant.simulate import compile_model, load_recording, simulate, to_wire
+
+ROOT = Path(__file__).resolve().parents[2]
+PLANT = ROOT / "configs" / "plant.toml"
+TRAINING = ROOT / "traces" / "training"
+
+
+@pytest.fixture(scope="module")
+def plant():
+    return PlantModel.from_toml(PLANT)
+
+
+def single_tank(coeff=0.3, area=2.0, substeps=2, dead_time=0.0, gain=0.0):
+    return PlantModel.from_dict({
+        "model": {"name": "one", "dt": 0.1, "substeps": substeps},
+        "inputs": {"u": {"min": 0.0, "max": 1.0}},
+        "tank": [{"name": "A", "area": area}],
+        "pump": [{"name": "P", "input": "u", "from": "outside", "to": "A", "gain": gain, "dead_time": dead_time}],
+        "link": [{"name": "out", "from": "A", "to": "outside", "coeff": coeff}],
+        "sensor": [{"name": "y", "tank": "A"}],
+    })
+
+
+def random_inputs(n, rng, names=("p1", "v1", "v2"), hold=37):
+    return {k: np.repeat(rng.uniform(0, 1, n // hold + 1), hold)[:n] for k in names}
+
+
+# ---- model file ----------------------------------------------------------------------
+def test_toml_round_trip_with_fault_mechanisms(plant, tmp_path):
+    m = plant.copy()
+    m.links.append(Link("leak_T3", "T3", "outside", 0.012))
+    m.set("pump.P1.dead_time", 0.55)
+    m.set("pump.P1.head_coeff", 0.02)
+    m.set("valve.V2.characteristic", 1.7)
+    m.set("sensor.L2.offset", 0.15)
+    m.set("sensor.L1.max", 9.0)
+    m.set("tank.T2.overflow.to", "T3")
+    m.to_toml(tmp_path / "m.toml")
+    back = PlantModel.from_toml(tmp_path / "m.toml")
+    assert back == m
+    assert back.to_toml() == m.to_toml()
+    assert plant.state_names == ["T1", "T2", "T3", "T4", "V1", "V2"]
+    assert plant.input_names == ["p1", "v1", "v2"] and plant.signal_names == ["L1", "L2", "L3", "L4"]
+
+
+# ---- physics and numerics --------------------------------------------------------------
+def test_mass_conservation_with_spill_and_leak(plant):
+    m = plant.copy()
+    m.links.append(Link("leak", "T2", "outside", 0.02))
+    m.links.append(Link("leak2", "T1", "T4", 0.03))
+    m.tanks[2].overflow.to = "outside"
+    rng = np.random.default_rng(1)
+    n = 3000
+    u = random_inputs(n, rng)
+    u["p1"] = np.ones(n)                         # pump hard: T1 reaches the rim and spills
+    r = simulate(m, np.arange(n) * 0.1, u, {"T1": 9.0, "T2": 8.0, "T3": 9.9, "T4": 13.1})
+    total = r["volumes"].sum(axis=1) + r["outside"]
+    assert np.max(np.abs(total - 40.0)) < 1e-9
+    assert r["volumes"][:, 0].max() <= 10.0 + 1e-12          # held at the rim
+    assert np.any(np.isclose(r["volumes"][:, 0], 10.0))
+
+
+def test_single_tank_matches_torricelli():
+    C, A, h0 = 0.3, 2.0, 3.75
+    m = single_tank(C, A)
+    n = 200
+    t = np.arange(n) * 0.1
+    r = simulate(m, t, {}, {"A": h0 * A})
+    h = np.maximum(np.sqrt(h0) - C * t / (2 * A), 0.0) ** 2
+    assert np.max(np.abs(r["y"] - A * h)) < 1e-6
+
+
+@pytest.mark.parametrize("tau", [0.4, 0.25, 0.37])
+def test_dead_time_is_exact(tau):
+    """A pump into a closed tank: V(t) = g * max(t - t_step - tau, 0), exactly."""
+    g = 0.3
+    m = single_tank(coeff=0.0, gain=g, dead_time=tau)
+    n = 60
+    t = np.arange(n) * 0.1
+    u = (t >= 1.0 - 1e-9).astype(float)
+    r = simulate(m, t, {"u": u}, {"A": 0.0})
+    assert np.max(np.abs(r["y"] - g * np.maximum(t - 1.0 - tau, 0.0))) < 1e-12
+
+
+def test_dead_time_shifts_step_response_by_whole_samples(plant):
+    n = 300
+    t = np.arange(n) * 0.1
+    u = {"p1": (t >= 3.0 - 1e-9) * 1.0, "v1": np.full(n, 0.5), "v2": np.full(n, 0.3)}
+    x0 = {"T1": 5.0, "T2": 4.0, "T3": 3.0, "T4": 28.0, "V1": 0.5, "V2": 0.3}
+    m0 = plant.copy()
+    m0.set("pump.P1.dead_time", 0.0)
+    shifted = dict(u, p1=np.concatenate([np.zeros(4), u["p1"][:-4]]))
+    r0 = simulate(m0, t, shifted, x0)                  # the command itself delayed by 4 samples
+    r4 = simulate(plant, t, u, x0)                     # 0.4 s dead time = 4 samples
+    np.testing.assert_allclose(r4["volumes"], r0["volumes"], atol=1e-12)
+    assert np.max(np.abs(simulate(m0, t, u, x0)["volumes"] - r4["volumes"])) > 0.05
+
+
+def test_batch_equals_scalar(plant):
+    cm = compile_model(plant)
+    rng = np.random.default_rng(2)
+    n = 400
+    u = random_inputs(n, rng)
+    U = np.column_stack([u[k] for k in plant.input_names])
+    x0 = np.array([6.0, 5.0, 4.0, 25.0, 0.2, 0.3])
+    P = np.tile(cm.params[:, None], (1, 3))
+    P[cm.param_names.index("link.pipe23.coeff")] = [0.08, 0.12, 0.2]
+    Xb = cm.run(U, x0, P)
+    for j in range(3):
+        np.testing.assert_allclose(cm.run(U, x0, P[:, j]), Xb[:, :, j], atol=1e-12)
+
+
+def test_sensor_saturation_offset_and_level():
+    m = single_tank(coeff=0.0, gain=0.3)
+    m.sensors[0].quantity = "level"
+    m.sensors[0].offset = 0.5
+    m.sensors[0].max = 2.0
+    t = np.arange(200) * 0.1
+    r = simulate(m, t, {"u": np.ones(200)}, {"A": 0.0})
+    expect = np.minimum(0.3 * t / 2.0 + 0.5, 2.0)
+    np.testing.assert_allclose(r["y"], expect, atol=1e-12)
+
+
+def test_simulate_speed(plant):
+    import time
+
+    n = 6000
+    rng = np.random.default_rng(3)
+    u = random_inputs(n, rng)
+    t = np.arange(n) * 0.1
+    simulate(plant, t, u, {"T1": 5, "T2": 5, "T3": 5, "T4": 25})
+    t0 = time.perf_counter()
+    simulate(plant, t, u, {"T1": 5, "T2": 5, "T3": 5, "T4": 25})
+    assert time.perf_counter() - t0 < 0.5          # ~30 ms on a laptop core; generous for CI
+
+
+# ---- recordings -------------------------------------------------------------------------
+def _labels():
+    with open(TRAINING / "labels.csv") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.mark.parametrize("scenario", ["drain", "fill"])
+def test_fault_classes_reproduce_training_slopes(plant, scenario):
+    """Mean monitor slope per class, simulated (datasheet model) vs recorded.
+
+    Measured: the datasheet model is within 2.2 % of the recordings for every
+    class (drain slopes ~1-2 % steeper, fill slopes ~1.7 % flatter: the real
+    pump delivers ~0.305 L/s); run-to-run spread of the recorded means is 0.3 %.
+    3.5 % keeps the classes (30-40 % apart) well separated.
+    """
+    rows = [r for r in _labels() if r["scenario"] == scenario]
+    for cls in ("normal", "warning", "error"):
+        sel = [r for r in rows if r["class"] == cls]
+        rec = np.concatenate([monitor_slopes(scenario, load_recording(TRAINING / r["file"], plant).signals)
+                              for r in sel])
+        key = "vm1" if scenario == "drain" else "vm2"
+        proc = make_procedure(plant, scenario, float(sel[0]["v0"]), {key: float(sel[0]["closure"])})
+        sim = monitor_slopes(scenario, run_procedure(proc, noise=False))
+        assert len(sim) > 5
+        assert abs(sim.mean() / rec.mean() - 1) < 0.035, (cls, sim.mean(), rec.mean())
+
+
+def test_closed_loop_mpc_tracks_setpoints(plant):
+    from civic.plant.control import run_closed_loop
+
+    sched = [(0.0, "setpoints", [8.0, 7.2, 6.3]), (20.0, "setpoints", [8.6, 7.6, 6.6])]
+    for ctrl in ("mpc", "pi"):
+        r = run_closed_loop(plant, 90.0, controller=ctrl, seed=5, noise=False, schedule=sched)
+        last = np.array([r.volumes[-1, i] for i in range(3)])
+        assert np.max(np.abs(last - [8.6, 7.6, 6.6])) < 0.1, (ctrl, last)
+        assert np.max(np.abs(r.volumes.sum(axis=1) - 40.0)) < 1e-9
+
+
+# ---- CLI ----------------------------------------------------------------------------------
+def test_cli_csv_equals_pcap_and_no_noise_is_deterministic(tmp_path, capsys):
+    from civic.wire import read_pcap
+
+    base = ["simulate", "drain", "--model", str(PLANT), "--fault", "vm1=0.3", "--seed", "4"]
+    assert civic_main(base + ["-o", str(tmp_path / "a.pcap")]) == 0
+    assert civic_main(base + ["-o", str(tmp_path / "a.csv")]) == 0
+    msgs = read_pcap(tmp_path / "a.pcap").messages
+    data = np.genfromtxt(tmp_path / "a.csv", delimiter=",", names=True)
+    assert (tmp_path / "a.csv").read_text().splitlines()[0] == "t_s,l1,l2,l3,l4,p1,v1,v2"
+    for f in ("l1", "l2", "l3", "l4", "p1", "v1", "v2"):
+        np.testing.assert_array_equal(msgs[f], data[f].astype(int))
+    np.testing.assert_allclose(msgs["t"] - msgs["t"][0], data["t_s"], atol=1e-6)
+    # commands switch exactly at t = 3 s
+    assert data["v2"][data["t_s"] < 2.95].max() == 0 and data["v2"][data["t_s"] > 2.95].min() == 1000
+    nn = ["simulate", "fill", "--model", str(PLANT), "--no-noise"]
+    assert civic_main(nn + ["-o", str(tmp_path / "b1.pcap")]) == 0
+    assert civic_main(nn + ["-o", str(tmp_path / "b2.pcap")]) == 0
+    assert (tmp_path / "b1.pcap").read_bytes() == (tmp_path / "b2.pcap").read_bytes()
+
+
+def test_cli_labels_row(tmp_path):
+    lab = tmp_path / "labels.csv"
+    for cls in ("normal", "error"):
+        assert civic_main(["simulate", "fill", "--model", str(PLANT), "--fault", f"vm2={cls}", "--seed", "9",
+                           "-o", str(tmp_path / f"{cls}.pcap"), "--labels", str(lab)]) == 0
+    rows = list(csv.DictReader(open(lab)))
+    assert list(rows[0]) == ["file", "scenario", "monitor", "class", "v0", "closure", "seed", "src_ip", "set"]
+    assert [r["class"] for r in rows] == ["normal", "error"] and rows[1]["closure"] == "0.4"
+
+
+def test_cli_like_recording(capsys):
+    assert civic_main(["simulate", "--model", str(PLANT), "--like",
+                       str(TRAINING / "drain_v075_normal_r1.pcap")]) == 0
+    out = capsys.readouterr().out
+    rmse = {line.split()[0]: float(line.split()[1]) for line in out.splitlines() if line.startswith("L")}
+    assert set(rmse) == {"L1", "L2", "L3", "L4"}
+    assert rmse["L3"] < 0.06                    # noise 0.02 L + small model error
+
+
+@pytest.mark.parametrize("argv, msg", [
+    ([], "SCENARIO"),
+    (["drain"], "-o"),
+    (["drain", "-o", "x.txt"], ".pcap or .csv"),
+    (["drain", "--fault", "vm9=1", "-o", "x.csv"], "unknown valve"),
+    (["drain", "--fault", "vm1=2", "-o", "x.csv"], "[0, 1]"),
+    (["drain", "--v0", "20", "-o", "x.csv"], "start volume"),
+    (["--like", "/no/such.pcap"], "no such file"),
+    (["--model", "/no/model.toml", "drain", "-o", "x.csv"], "cannot read model"),
+])
+def test_cli_errors_are_one_line(argv, msg, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    if "--model" not in argv:
+        argv = ["--model", str(PLANT)] + argv
+    p = subprocess.run([sys.executable, "-m", "civic", "simulate"] + argv, capture_output=True, text=True,
+                       cwd=tmp_path)
+    assert p.returncode == 2
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and msg in lines[0] and "Traceback" not in p.stderr
+
+
+def test_cli_bad_model_file(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[tank]]\nname = "A"\narea = 1.0\n[[link]]\nname = "l"\nfrom = "A"\nto = "B"\ncoeff = 1.0\n')
+    p = subprocess.run([sys.executable, "-m", "civic", "simulate", "drain", "--model", str(bad), "-o",
+                        str(tmp_path / "x.csv")], capture_output=True, text=True)
+    assert p.returncode == 2 and "unknown tank 'B'" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+
+def test_to_wire_clips_and_rounds(plant):
+    w = to_wire(plant, {"L1": np.array([-0.5, 0.0004, 0.0006, 70.0]), "p1": np.array([0.0, 0.5, 1.0, 0.9996])})
+    assert w["l1"].tolist() == [0, 0, 1, 65535] and w["p1"].tolist() == [0, 500, 1000, 1000]

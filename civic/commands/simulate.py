@@ -76,7 +76,7 @@ def run(args) -> int:
         duration = 600.0 if args.duration is None else args.duration
         with _progress(duration) as prog:
             res = run_closed_loop(m, duration, controller=args.controller, seed=args.seed, noise=noise,
-                                  progress=prog)
+                                  progress=prog, controller_model=model)
         t, signals = res.t, res.signals
         extra = f", {sum(1 for o in res.operation if o[1].endswith(':run'))} embedded test(s)"
     else:

@@ -352,8 +352,14 @@ class Stepper:
 
 
 def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc", seed=None,
-                    noise: bool = True, schedule=None, x0=None, progress=None) -> ClosedLoopResult:
-    """Simulate the plant under MPC/PI with the supervisor's setpoints and tests."""
+                    noise: bool = True, schedule=None, x0=None, progress=None,
+                    controller_model: PlantModel | None = None) -> ClosedLoopResult:
+    """Simulate the plant under MPC/PI with the supervisor's setpoints and tests.
+
+    `model` is the simulated plant (it may carry faults: leaks, offsets...);
+    the controller is designed on `controller_model` (default: the same model),
+    so a concealed fault is simulated by passing the nominal model here.
+    """
     import time as _time
 
     plant = _Plant4(model)
@@ -377,9 +383,10 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     else:
         x0v = _x0_vector(model, x0, np.zeros((1, len(model.inputs))))
         us = plant.steady_input(x0v[tidx])
-    ctrl = LinearMPC(model, sp) if controller == "mpc" else PIController(model, sp)
     if controller not in ("mpc", "pi"):
         raise CivicError(f"unknown controller {controller!r} (mpc, pi)")
+    cmodel = controller_model if controller_model is not None else model
+    ctrl = LinearMPC(cmodel, sp) if controller == "mpc" else PIController(cmodel, sp)
     iin = [model.input_names.index(c) for c in COMMANDS]
     u_full = np.zeros(len(model.inputs))
     u_full[iin] = us

@@ -39,4 +39,6 @@ def run(args) -> int:
     stats = replay_files([Path(i) for i in args.inputs], outs, entries, args.entries, args.target, args.pipeline)
     print(f"replayed {stats['frames']} frames ({stats['plant']} plant messages, "
           f"{stats['evaluated']} with a verdict) from {len(outs)} file(s) -> {args.output}")
+    if stats.get("missing"):
+        print(f"warning: {stats['missing']} frames did not come out of the switch (left out of the output)")
     return 0

@@ -1,0 +1,307 @@
+"""Model vs recording: equation error and simulation error.
+
+Two ways to confront a `PlantModel` with a recording:
+
+* **Equation error** (`EquationError`, needs every tank measured): the
+  per-tank mass balance evaluated on the *measured* states. Over consecutive
+  windows of `window_s` seconds, the measured volume change of each tank is
+  compared with the integral of the model's flows computed from the measured
+  levels and the recorded commands (valve positioners, dead times, pump head,
+  links, overflow spill, sensor gain/offset/saturation all taken from the
+  model). It cannot drift, does not care about the closed loop, and is cheap
+  (vectorised numpy): this is what the fitter uses.
+* **Simulation error** (`SimulationError`): drive the model with the recorded
+  inputs from the recorded initial state (open loop) and compare the sensor
+  signals; `horizon_s` restarts the simulation from the measured state every
+  horizon (multiple shooting) when all tanks are measured. Used for the
+  before/after RMSE and, when some tanks are unmeasured (e.g. the Cascaded
+  Tanks benchmark), for fitting too.
+
+Both expose `residuals(model) -> (rows, columns)` with `columns` (tank or
+signal names), `row_times` ([t0, t1] per row, seconds) and a boolean
+`train` mask (the rest is held out).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+from scipy.signal import lfilter
+
+from civic.errors import CivicError
+from civic.plant.model import OUTSIDE, PlantModel
+from civic.plant.simulate import Recording, initial_state, inputs_matrix, simulate
+
+N_BLOCKS = 6          # interleaved train / held-out blocks (even: train, odd: held out)
+
+
+def holdout_mask(n: int, blocks: int = N_BLOCKS) -> np.ndarray:
+    """True = training row. Contiguous blocks, alternating train / held out."""
+    b = np.minimum((np.arange(n) * blocks) // max(n, 1), blocks - 1)
+    return (b % 2) == 0
+
+
+def rmse(a, b) -> float:
+    d = np.asarray(a, float) - np.asarray(b, float)
+    return float(np.sqrt(np.mean(d * d))) if d.size else float("nan")
+
+
+def _zoh_average(u: np.ndarray, delay: float, dt: float) -> np.ndarray:
+    """Average over each sample interval [k dt, (k+1) dt] of the zero-order-held u delayed by `delay`."""
+    n = len(u)
+    knots = np.arange(n + 1) * dt
+    cum = np.concatenate(([0.0], np.cumsum(u) * dt))
+    a = knots[:-1] - delay
+    b = knots[1:] - delay
+
+    def c(x):
+        inside = np.interp(x, knots, cum)
+        return np.where(x < 0, u[0] * x, inside)
+
+    return (c(b) - c(a)) / dt
+
+
+class EquationError:
+    """Per-tank windowed mass-balance residuals on the measured states (litres per window)."""
+
+    kind = "equation"
+
+    def __init__(self, model: PlantModel, rec: Recording, window_s: float = 5.0, smooth: int = 5):
+        self.rec = rec
+        n = len(rec.t)
+        self.n = n
+        self.dt = float(model.dt)
+        self.W = max(2, int(round(window_s / self.dt)))
+        self.nwin = (n - 1) // self.W
+        if self.nwin < 6:
+            raise CivicError(f"{rec.path}: too short for the equation error ({n} samples)")
+        self.columns = model.tank_names
+        sensed = {}
+        for s in model.sensors:
+            if s.name in rec.signals and s.tank not in sensed:
+                sensed[s.tank] = s.name
+        missing = [t for t in model.tank_names if t not in sensed]
+        if missing:
+            raise CivicError(f"equation error needs every tank measured; unmeasured: {', '.join(missing)}")
+        self.sensor_of = sensed
+        self.smooth = smooth
+        self.raw = {k: np.asarray(v, float) for k, v in rec.signals.items()}
+        self.ys = {s: uniform_filter1d(self.raw[s], smooth, mode="nearest") for s in sensed.values()}
+        self.U = inputs_matrix(model, {k: rec.signals[k] for k in model.input_names}, n)
+        self.input_index = {k: i for i, k in enumerate(model.input_names)}
+        k0 = np.arange(self.nwin) * self.W
+        self.k0, self.k1 = k0, k0 + self.W
+        t = np.arange(n) * self.dt
+        self.row_times = np.stack([t[self.k0], t[self.k1]], axis=1)
+        self.train = holdout_mask(self.nwin)
+        self._cache = {}
+
+    # ---- pieces that depend on a few parameters only (cached) -----------------------
+    def _pump_avg(self, inp: str, delay: float) -> np.ndarray:
+        key = ("p", inp, round(delay, 9))
+        if key not in self._cache:
+            if len(self._cache) > 256:
+                self._cache.clear()
+            self._cache[key] = _zoh_average(self.U[:, self.input_index[inp]], delay, self.dt)
+        return self._cache[key]
+
+    def _opening(self, v) -> np.ndarray:
+        """Valve opening at the sample instants (exact first order under a held delayed command)."""
+        key = ("v", v.input, round(v.tau, 9), round(v.dead_time, 9))
+        if key not in self._cache:
+            ub = _zoh_average(self.U[:, self.input_index[v.input]], v.dead_time, self.dt)
+            if v.tau > 0:
+                e = math.exp(-self.dt / v.tau)
+                a = np.empty(self.n)
+                a[0] = ub[0]
+                # a[k+1] = e a[k] + (1 - e) ub[k]
+                a[1:], _ = lfilter([1 - e], [1, -e], ub[:-1], zi=[e * ub[0]])
+            else:
+                a = np.concatenate(([ub[0]], ub[:-1]))
+            self._cache[key] = a
+        return self._cache[key]
+
+    def volumes(self, model: PlantModel, smoothed: bool = True):
+        """(n, ntanks) volumes from the sensors (inverted through gain/offset) and a censored mask."""
+        n, nt = self.n, len(model.tanks)
+        V = np.empty((n, nt))
+        cens = np.zeros((n, nt), bool)
+        for i, tk in enumerate(model.tanks):
+            s = model.find("sensor", self.sensor_of[tk.name])
+            y = (self.ys if smoothed else self.raw)[s.name]
+            q = (y - s.offset) / s.gain
+            V[:, i] = q * tk.area if s.quantity == "level" else q
+            if s.max is not None:
+                tol = max(s.resolution, 1e-9) * 1.5
+                cens[:, i] = self.raw[s.name] >= s.max - tol
+        return V, cens
+
+    def flows(self, model: PlantModel, V: np.ndarray):
+        """Per-interval volume changes (n-1, ntanks) and outside accumulation, spill included."""
+        nt = len(model.tanks)
+        tidx = {t.name: i for i, t in enumerate(model.tanks)}
+        area = np.array([t.area for t in model.tanks])
+        dt = self.dt
+        H = V / area
+        Hm = 0.5 * (H[1:] + H[:-1])
+        Vm = 0.5 * (V[1:] + V[:-1])
+        F = np.zeros((self.n - 1, nt))
+        out = np.zeros(self.n - 1)
+
+        def move(src, dst, q):
+            if src == OUTSIDE:
+                nonlocal out
+                out = out - q
+            else:
+                F[:, tidx[src]] -= q
+            if dst == OUTSIDE:
+                out = out + q
+            else:
+                F[:, tidx[dst]] += q
+
+        for p in model.pumps:
+            u = self._pump_avg(p.input, p.dead_time)[:-1]
+            c = p.gain * (1.0 - p.closure) * np.maximum(u - p.input_offset, 0.0)
+            if p.to != OUTSIDE and p.head_coeff:
+                c = c * np.maximum(1.0 - p.head_coeff * Hm[:, tidx[p.to]], 0.0)
+            if p.from_ != OUTSIDE and p.min_source_volume > 0:
+                c = np.where(Vm[:, tidx[p.from_]] >= p.min_source_volume, c, 0.0)
+            move(p.from_, p.to, c * dt)
+        eff = {}
+        for v in model.valves:
+            a = self._opening(v)
+            nexp = v.exponent()
+            eff[v.name] = np.maximum(a, 0.0) ** nexp if nexp != 1.0 else a
+        for lk in model.links:
+            k = lk.coeff * (1.0 - lk.closure)
+            if lk.valve is not None:
+                k = k * eff[lk.valve]
+            i = tidx[lk.from_]
+            if lk.law == "orifice":
+                h = np.maximum(H[:, i] - lk.min_level, 0.0)
+                q = k * (np.sqrt(h) if lk.exponent == 0.5 else h ** lk.exponent)
+            else:
+                d = H[:, i] - H[:, tidx[lk.to]]
+                q = k * np.sign(d) * (np.sqrt(np.abs(d)) if lk.exponent == 0.5 else np.abs(d) ** lk.exponent)
+            q = np.broadcast_to(q, (self.n,))
+            move(lk.from_, lk.to, 0.5 * (q[1:] + q[:-1]) * dt)
+        # overflow: instantaneous spill keeping the tank at its rim
+        for i in model._overflow_order():
+            tk = model.tanks[i]
+            rim = tk.rim_volume()
+            pre = V[:-1, i] + F[:, i]
+            at_rim = V[1:, i] >= rim - self.rim_tol
+            # at the rim every net inflow spills (measured noise is not rectified into spill)
+            s = np.where(at_rim, np.maximum(F[:, i], 0.0), np.maximum(pre - rim, 0.0))
+            move(tk.name, tk.overflow.to, s)
+        return F, out
+
+    rim_tol = 0.03  # L: a measured level this close to the rim counts as "at the rim"
+
+    def residuals(self, model: PlantModel) -> np.ndarray:
+        V, cens = self.volumes(model)
+        F, _ = self.flows(model, V)
+        cF = np.concatenate((np.zeros((1, F.shape[1])), np.cumsum(F, axis=0)))
+        R = (V[self.k1] - V[self.k0]) - (cF[self.k1] - cF[self.k0])
+        if cens.any():
+            # a saturated sensor hides its tank's volume: those windows carry no information
+            # about that tank, nor about the flows computed from it (its links' neighbours)
+            cc = np.concatenate(([np.zeros(len(model.tanks), int)], np.cumsum(cens, axis=0)))
+            cw = (cc[self.k1 + 1] - cc[self.k0]) > 0
+            if cw.any():
+                tidx = {t.name: i for i, t in enumerate(model.tanks)}
+                hide = cw.copy()
+                for lk in model.links:
+                    if lk.to != OUTSIDE:
+                        a, b = tidx[lk.from_], tidx[lk.to]
+                        hide[:, b] |= cw[:, a]
+                        if lk.law == "bidirectional":
+                            hide[:, a] |= cw[:, b]
+                R = np.where(hide, 0.0, R)
+        return R
+
+
+class SimulationError:
+    """Open-loop simulation driven by the recorded inputs: sensor residuals per sample.
+
+    horizon_s=None: one free run from the initial state (unmeasured tanks are
+    nuisance parameters, see `x0`). horizon_s=h: restart from the measured
+    state every h seconds (multiple shooting; needs every tank measured).
+    """
+
+    kind = "simulation"
+
+    def __init__(self, model: PlantModel, rec: Recording, horizon_s: float | None = None,
+                 n_init: int = 1, skip: int = 0):
+        self.rec = rec
+        self.n = len(rec.t)
+        self.dt = float(model.dt)
+        self.t = np.arange(self.n) * self.dt
+        self.inputs = {k: np.asarray(rec.signals[k], float) for k in model.input_names}
+        self.columns = [s for s in model.signal_names if s in rec.signals]
+        self.Y = np.stack([np.asarray(rec.signals[s], float) for s in self.columns], axis=1)
+        self.n_init = n_init
+        self.skip = skip
+        self.horizon = None if horizon_s is None else max(2, int(round(horizon_s / self.dt)))
+        rows = np.arange(skip, self.n)
+        self.row_times = np.stack([self.t[rows], self.t[rows] + self.dt], axis=1)
+        self.train = np.zeros(len(rows), bool)
+        self.train[: int(0.65 * len(rows))] = True
+        self.x0_extra: dict = {}
+
+    def unmeasured(self, model: PlantModel) -> list[str]:
+        sensed = {model.find("sensor", s).tank for s in self.columns}
+        return [t for t in model.tank_names if t not in sensed]
+
+    def x0(self, model: PlantModel, k: int = 0) -> dict:
+        sig = {k2: v[k:] for k2, v in self.rec.signals.items()}
+        if k == 0 and self.x0_extra:
+            # measured tanks from the data, unmeasured ones as given (fitted nuisance values)
+            part = {key: val for key, val in self.x0_extra.items()}
+            sensed_only = _measured_state(model, sig, max(1, self.n_init))
+            sensed_only.update(part)
+            return sensed_only
+        return initial_state(model, sig, self.n_init if k == 0 else 1)
+
+    def simulate(self, model: PlantModel) -> dict:
+        if self.horizon is None:
+            return simulate(model, self.t, self.inputs, self.x0(model))
+        out = {s: np.empty(self.n) for s in self.columns}
+        for k in range(0, self.n, self.horizon):
+            e = min(self.n, k + self.horizon + 1)
+            seg = simulate(model, self.t[k:e] - self.t[k], {n: v[k:e] for n, v in self.inputs.items()},
+                           _measured_state(model, {n: v[k:] for n, v in self.rec.signals.items()}, 1))
+            for s in self.columns:
+                out[s][k:e] = seg[s]
+        return out
+
+    def residuals(self, model: PlantModel) -> np.ndarray:
+        sim = self.simulate(model)
+        P = np.stack([sim[s] for s in self.columns], axis=1)
+        return (P - self.Y)[self.skip:]
+
+    def rmse(self, model: PlantModel, rows=None) -> dict:
+        R = self.residuals(model)
+        if rows is not None:
+            R = R[rows]
+        return {s: float(np.sqrt(np.mean(R[:, j] ** 2))) for j, s in enumerate(self.columns)}
+
+
+def _measured_state(model: PlantModel, signals: dict, n_init: int) -> dict:
+    """Initial state of the measured tanks and valves only (no search for unmeasured ones)."""
+    x0 = {}
+    for s in model.sensors:
+        if s.name in signals and s.tank not in x0:
+            y = float(np.mean(np.asarray(signals[s.name], float)[:n_init]))
+            q = (y - s.offset) / s.gain if s.gain else 0.0
+            x0[s.tank] = q * model.tank(s.tank).area if s.quantity == "level" else q
+    for v in model.valves:
+        if v.input in signals:
+            x0[v.name] = float(np.clip(np.asarray(signals[v.input])[0], 0.0, 1.0))
+    return x0
+
+
+def fully_measured(model: PlantModel, rec: Recording) -> bool:
+    sensed = {s.tank for s in model.sensors if s.name in rec.signals}
+    return all(t in sensed for t in model.tank_names)

@@ -1,0 +1,315 @@
+"""Fit the catalogue's candidates and select on held-out data.
+
+1. **Calibration** (not a finding): the model's coefficients (pump gains, link
+   coefficients) may each move within +-5 % (datasheet spread); fitted by
+   `scipy.optimize.least_squares` on the training rows.
+2. **Localisation** of what the calibrated nominal model still misses
+   (`civic.diagnose.locate`). No flagged component: no significant mismatch.
+3. **Candidates** of every catalogue family where the localisation points,
+   each fitted jointly with the calibration on the training rows.
+4. **Selection** on the held-out rows (interleaved blocks for the equation
+   error, the last 35 % for a free-run simulation): BIC of the held-out
+   residuals, `N log(SSE/N) + k log N`. A candidate becomes a finding only if
+   it lowers the held-out BIC by `MIN_DBIC` and the held-out SSE by
+   `MIN_GAIN`. Forward selection: the finding joins the model and the other
+   candidates are tried again (up to `MAX_FINDINGS`).
+5. The selected model is refitted on all rows: the improved model.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from civic.plant.model import PlantModel
+from civic.plant.simulate import Recording
+
+from .compare import EquationError, SimulationError, fully_measured
+from .locate import Localisation, localise, noise_sigma, robust_sigma
+from .mechanisms import CATALOGUE, Mechanism, coefficient_paths
+
+CAL_SPREAD = 0.05
+MIN_DBIC = 10.0
+MIN_GAIN = 0.10
+MAX_FINDINGS = 3
+
+
+@dataclass
+class Calibration:
+    """Coefficients allowed to move within the datasheet spread, as multiplicative factors."""
+    paths: list[tuple[str, str]]
+    nominal: list[float]
+    spread: float = CAL_SPREAD
+
+    @classmethod
+    def of(cls, model: PlantModel, spread: float = CAL_SPREAD) -> "Calibration":
+        paths = [(c, p) for c, p in coefficient_paths(model) if float(model.get(p)) > 0]
+        return cls(paths, [float(model.get(p)) for _, p in paths], spread)
+
+    def __len__(self):
+        return len(self.paths)
+
+    def apply(self, model: PlantModel, factors, copy=True) -> PlantModel:
+        m = model.copy() if copy else model
+        for (_, path), nom, f in zip(self.paths, self.nominal, factors):
+            if float(m.get(path)) == nom:   # a Coefficient finding on the same path wins
+                m.set(path, nom * float(f))
+        return m
+
+    def report(self, factors) -> dict:
+        return {path: {"nominal": nom, "value": round(nom * float(f), 6), "change_pct": round((f - 1) * 100, 2)}
+                for (_, path), nom, f in zip(self.paths, self.nominal, factors)}
+
+
+@dataclass
+class FitResult:
+    mechanisms: list[Mechanism]             # with fitted values
+    cal: np.ndarray                         # calibration factors
+    x0_extra: dict                          # fitted unmeasured initial volumes (free run)
+    train_sse: float
+    val_sse: float
+    val_bic: float
+    k: int
+    model: PlantModel                       # the resulting model
+    ok: bool = True
+
+
+@dataclass
+class Diagnosis:
+    model_nominal: PlantModel
+    model_calibrated: PlantModel
+    model_improved: PlantModel
+    engine: object
+    loc: Localisation
+    base: FitResult                         # calibrated nominal
+    final: FitResult                        # calibrated + findings (fitted on training rows)
+    findings: list[dict] = field(default_factory=list)
+    tried: list[dict] = field(default_factory=list)
+    sigma: np.ndarray | None = None
+    cal_report: dict = field(default_factory=dict)
+    mismatch: bool = False
+    verdict: str = ""
+    final_all: FitResult | None = None       # final model refitted on all rows
+
+
+class Problem:
+    """Objective plumbing: model edits -> weighted residual rows of an engine."""
+
+    def __init__(self, model: PlantModel, rec: Recording, engine, cal: Calibration, sigma: np.ndarray):
+        self.model = model
+        self.rec = rec
+        self.engine = engine
+        self.cal = cal
+        self.sigma = sigma
+        self.unmeasured = engine.unmeasured(model) if isinstance(engine, SimulationError) else []
+        self.val = ~engine.train
+        self.n_eval = 0
+
+    def build(self, mechs: list[Mechanism], thetas: list, cal_f) -> PlantModel:
+        m = self.cal.apply(self.model, cal_f)
+        for mech, th in zip(mechs, thetas):
+            mech.edit(m, mech.values(th))
+        return m
+
+    def residuals(self, model: PlantModel, x0_extra: dict | None = None) -> np.ndarray:
+        self.n_eval += 1
+        if self.unmeasured:
+            self.engine.x0_extra = dict(x0_extra or {})
+        R = self.engine.residuals(model)
+        if not np.all(np.isfinite(R)):
+            R = np.where(np.isfinite(R), R, 1e3)
+        return R / self.sigma
+
+    def fit(self, mechs: list[Mechanism], rows=None, start_cal=None, start_x0=None,
+            starts: list | None = None) -> FitResult:
+        """Fit calibration + the free parameters of `mechs` (+ unmeasured initial volumes) on `rows`."""
+        rows = self.engine.train if rows is None else rows
+        nc = len(self.cal)
+        sizes = [len(m.names) for m in mechs]
+        lo = [np.full(nc, 1 - self.cal.spread)] + [m.lower for m in mechs]
+        hi = [np.full(nc, 1 + self.cal.spread)] + [m.upper for m in mechs]
+        x_init = [np.ones(nc) if start_cal is None else np.asarray(start_cal, float)] + [m.x0 for m in mechs]
+        xu_names = list(self.unmeasured)
+        if xu_names:
+            caps = []
+            for t in xu_names:
+                tk = self.model.tank(t)
+                cap = tk.rim_volume() if math.isfinite(tk.rim_volume()) else (
+                    tk.capacity if math.isfinite(tk.capacity) else 20.0 * tk.area)
+                caps.append(cap)
+            lo.append(np.zeros(len(xu_names)))
+            hi.append(np.array(caps) * 1.5)
+            x_init.append(np.array([(start_x0 or {}).get(t, 0.5 * c) for t, c in zip(xu_names, caps)]))
+        lo, hi = np.concatenate(lo), np.concatenate(hi)
+        x0 = np.clip(np.concatenate(x_init), lo, hi)
+        span = np.where(np.isfinite(hi - lo), hi - lo, np.maximum(np.abs(x0), 1.0))
+
+        def split(x):
+            cal_f = x[:nc]
+            th, pos = [], nc
+            for s in sizes:
+                th.append(x[pos:pos + s])
+                pos += s
+            xu = {t: float(v) for t, v in zip(xu_names, x[pos:])}
+            return cal_f, th, xu
+
+        def fun(x):
+            cal_f, th, xu = split(x)
+            R = self.residuals(self.build(mechs, th, cal_f), xu)
+            return R[rows].ravel()
+
+        starts_x = [x0]
+        last = nc + sum(sizes[:-1])          # extra starts move the last mechanism's parameters
+        for s in (starts or []):
+            if sizes and len(s) == sizes[-1]:
+                xs = x0.copy()
+                xs[last:last + len(s)] = s
+                starts_x.append(np.clip(xs, lo, hi))
+        best = None
+        for xs in starts_x:
+            # keep the start strictly inside the bounds (least_squares requirement)
+            xs = np.clip(xs, lo + 1e-9 * span, hi - 1e-9 * span)
+            try:
+                sol = least_squares(fun, xs, bounds=(lo, hi), x_scale=span, diff_step=1e-4,
+                                    max_nfev=60 * (len(xs) + 1), xtol=1e-6, ftol=1e-8)
+            except (ValueError, FloatingPointError):
+                continue
+            if best is None or sol.cost < best.cost:
+                best = sol
+        if best is None:
+            raise RuntimeError("no start converged")
+        cal_f, th, xu = split(best.x)
+        fitted = [m.with_values(t) for m, t in zip(mechs, th)]
+        model = self.build(mechs, th, cal_f)
+        R = self.residuals(model, xu)
+        k = sum(m.n_params for m in mechs)
+        train_sse = float(np.sum(R[self.engine.train] ** 2))
+        val_sse = float(np.sum(R[self.val] ** 2))
+        return FitResult(fitted, cal_f, xu, train_sse, val_sse, self.bic(R[self.val], k), k, model)
+
+    def bic(self, Rv: np.ndarray, k: int) -> float:
+        N = self.n_eff(Rv)
+        sse = float(np.sum(Rv ** 2))
+        return N * math.log(max(sse / Rv.size, 1e-300)) + k * math.log(max(N, 2))
+
+    def n_eff(self, Rv: np.ndarray) -> float:
+        """Effective number of independent held-out residuals (free-run errors are correlated)."""
+        if not isinstance(self.engine, SimulationError):
+            return float(Rv.size)
+        if getattr(self, "_neff", None) is None:
+            r = Rv - Rv.mean(axis=0)
+            rho = float(np.sum(r[1:] * r[:-1]) / max(np.sum(r * r), 1e-300))
+            rho = min(max(rho, 0.0), 0.99)
+            self._neff = max(10.0, Rv.size * (1 - rho) / (1 + rho))
+        return self._neff
+
+
+def make_engine(model: PlantModel, rec: Recording, window_s: float = 5.0, n_init: int = 1):
+    if fully_measured(model, rec):
+        return EquationError(model, rec, window_s=window_s)
+    return SimulationError(model, rec, horizon_s=None, n_init=n_init)
+
+
+def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float = 5.0,
+             n_init: int = 1) -> Diagnosis:
+    """Calibrate, localise, fit candidates, select on held-out data. See the module doc."""
+    engine = make_engine(model, rec, window_s=window_s, n_init=n_init)
+    cal = Calibration.of(model)
+    prob = Problem(model, rec, engine, cal, np.ones(len(engine.columns)))
+    # noise weights: equation error -> robust spread of the raw nominal residual; simulation -> sensor noise
+    if isinstance(engine, EquationError):
+        first = prob.fit([])
+        R0 = prob.residuals(first.model, first.x0_extra)
+        sigma = np.array([robust_sigma(R0[engine.train, j] - np.median(R0[engine.train, j]))
+                          for j in range(R0.shape[1])])
+        # the residual spread cannot be below what sensor noise alone gives
+        sigma = np.maximum(sigma, 1e-6)
+    else:
+        sigma = np.array([max(noise_sigma(engine.Y[:, j]), 1e-3 * (np.ptp(engine.Y[:, j]) or 1.0))
+                          for j in range(engine.Y.shape[1])])
+    prob.sigma = sigma
+    base = prob.fit([], starts=None)
+    Rb = prob.residuals(base.model, base.x0_extra)
+    loc = localise(model, rec, engine, Rb * sigma, sigma)
+    diag = Diagnosis(model, base.model, base.model, engine, loc, base, base, sigma=sigma)
+    diag.cal_report = cal.report(base.cal)
+    if not loc.flagged:
+        diag.mismatch = False
+        diag.verdict = "no significant mismatch: the calibrated nominal model explains the recording"
+        diag.model_improved = _refit_all(prob, [], base).model
+        return diag
+    current = base
+    chosen: list[Mechanism] = []
+    candidates = []
+    for fam in CATALOGUE:
+        candidates.extend(fam.candidates(model, loc))
+    total = len(candidates)
+    if progress:
+        progress(0, total * MAX_FINDINGS, "candidates")
+    done = 0
+    for round_ in range(MAX_FINDINGS):
+        results = []
+        for cand in candidates:
+            if any(type(c) is type(cand) and c.component == cand.component for c in chosen):
+                continue
+            try:
+                res = prob.fit(chosen + [cand], start_cal=current.cal, start_x0=current.x0_extra,
+                               starts=_starts(cand))
+            except RuntimeError:
+                continue
+            finally:
+                done += 1
+                if progress:
+                    progress(done, total * MAX_FINDINGS, cand.label)
+            results.append((cand, res))
+            if round_ == 0:
+                diag.tried.append({"candidate": cand.label, "val_bic": res.val_bic,
+                                   "dbic": res.val_bic - base.val_bic,
+                                   "val_gain": 1 - res.val_sse / max(base.val_sse, 1e-300),
+                                   "parameters": res.mechanisms[-1].report_parameters()})
+        if not results:
+            break
+        cand, res = min(results, key=lambda cr: cr[1].val_bic)
+        dbic = res.val_bic - current.val_bic
+        gain = 1 - res.val_sse / max(current.val_sse, 1e-300)
+        if not (dbic < -MIN_DBIC and gain > MIN_GAIN):
+            break
+        chosen.append(res.mechanisms[-1])
+        chosen[:-1] = res.mechanisms[:-1]
+        diag.findings.append({"mechanism": cand, "fit": res, "dbic": dbic, "gain": gain,
+                              "prev": current})
+        current = res
+        candidates = [c for c in candidates if not (type(c) is type(cand) and c.component == cand.component)]
+    if progress:
+        progress(total * MAX_FINDINGS, total * MAX_FINDINGS, "done")
+    diag.final = current
+    diag.mismatch = True
+    if chosen:
+        final_all = _refit_all(prob, chosen, current)
+        diag.model_improved = final_all.model
+        diag.final_all = final_all
+        diag.verdict = f"{len(chosen)} finding(s) significant on held-out data"
+    else:
+        diag.model_improved = _refit_all(prob, [], base).model
+        diag.verdict = ("mismatch, but no mechanism of the catalogue explains it significantly "
+                        "on held-out data")
+    return diag
+
+
+def _starts(cand: Mechanism) -> list:
+    """Extra starting points for parameters whose objective is flat away from the truth."""
+    if cand.name == "overflow" and "volume" in cand.params:
+        lo, hi = cand.bounds["volume"]
+        return [[lo + f * (hi - lo)] for f in (0.3, 0.55)]
+    if cand.name == "dead_time":
+        lo, hi = cand.bounds["dead_time"]
+        return [[lo + f * (hi - lo)] for f in (0.25, 0.6)]
+    return []
+
+
+def _refit_all(prob: Problem, mechs: list[Mechanism], start: FitResult) -> FitResult:
+    """Final parameters from all rows (training and held out)."""
+    rows = np.ones_like(prob.engine.train)
+    return prob.fit(mechs, rows=rows, start_cal=start.cal, start_x0=start.x0_extra)

@@ -1,0 +1,266 @@
+"""Where the mismatch is: components, time intervals and operating regime.
+
+Input: the residual matrix of the (calibrated) nominal model from an engine
+of `civic.diagnose.compare` (rows = windows or samples, columns = tanks or
+signals) and the recording. Output: a `Localisation`:
+
+* per column a significance score (the residual's low-frequency part against
+  its own high-frequency noise level) and the flagged components;
+* `tanks`: flagged tanks plus their neighbours (where candidates are fitted);
+* intervals (seconds) where the residual leaves its noise band;
+* regime: whether the mismatch concentrates above a level, after pump steps,
+  or while a valve is nearly closed (contrast of |residual| in vs out);
+* plateaus: measured tanks whose level sits at a top it never exceeds
+  (a rim: overflow) and sensors stuck at one exact value (saturation).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+
+from civic.plant.model import PlantModel
+from civic.plant.simulate import Recording
+
+from .mechanisms.base import tanks_touching
+
+BLOCK = 6          # rows averaged per block in the lack-of-fit statistic
+FLAG_RATIO = 3.0   # block-mean chi-square / expected above which a column is flagged
+FLAG_Z = 6.0       # |mean| in standard errors above which a column is flagged
+
+
+@dataclass
+class Localisation:
+    kind: str                                         # "equation" or "simulation"
+    columns: list[str]
+    scores: dict = field(default_factory=dict)        # column -> {"ratio", "z", "rms"}
+    flagged: list[str] = field(default_factory=list)  # columns (tanks or signals) carrying mismatch
+    tanks: list[str] = field(default_factory=list)    # tanks where candidates are fitted
+    intervals: dict = field(default_factory=dict)     # column -> [[t0, t1], ...]
+    regimes: list[str] = field(default_factory=list)  # human-readable regime findings
+    plateaus: dict = field(default_factory=dict)      # tank -> volume of a level plateau at its top
+    sensor_plateaus: dict = field(default_factory=dict)  # sensor -> exact stuck value at its max
+    unmeasured: list[str] = field(default_factory=list)
+    max_level: dict = field(default_factory=dict)
+    max_volume: dict = field(default_factory=dict)
+    signals_present: list[str] = field(default_factory=list)
+    signal_span: dict = field(default_factory=dict)
+
+    @property
+    def mismatch(self) -> bool:
+        return bool(self.flagged)
+
+    def all_intervals(self) -> list[list[float]]:
+        return merge([iv for c in self.flagged for iv in self.intervals.get(c, [])])
+
+
+def robust_sigma(x: np.ndarray) -> float:
+    x = np.asarray(x, float)
+    if x.size == 0:
+        return 1.0
+    return float(1.4826 * np.median(np.abs(x - np.median(x)))) or float(np.std(x)) or 1e-9
+
+
+def noise_sigma(x: np.ndarray) -> float:
+    """Noise level of a signal from its second differences (robust to slow trends)."""
+    d2 = np.diff(np.asarray(x, float), 2)
+    return robust_sigma(d2) / np.sqrt(6.0) if d2.size else 1e-9
+
+
+def merge(intervals, gap: float = 0.0) -> list[list[float]]:
+    out: list[list[float]] = []
+    for a, b in sorted(intervals):
+        if out and a <= out[-1][1] + gap:
+            out[-1][1] = max(out[-1][1], b)
+        else:
+            out.append([float(a), float(b)])
+    return out
+
+
+def column_scores(R: np.ndarray, sigma: np.ndarray, block: int = BLOCK) -> list[dict]:
+    """Per column: block-mean lack-of-fit ratio (~1 for white noise), mean z, rms/sigma."""
+    out = []
+    n = R.shape[0]
+    nb = n // block
+    for j in range(R.shape[1]):
+        r = R[:, j] / sigma[j]
+        used = r[r != 0.0] if np.any(r != 0.0) else r
+        z = float(np.mean(used) * np.sqrt(len(used))) if len(used) else 0.0
+        if nb >= 2:
+            bm = r[: nb * block].reshape(nb, block).mean(axis=1)
+            ratio = float(np.mean(bm ** 2) * block)
+        else:
+            ratio = float(np.mean(r ** 2))
+        out.append({"ratio": ratio, "z": z, "rms": float(np.sqrt(np.mean(r ** 2)))})
+    return out
+
+
+def find_intervals(r: np.ndarray, times: np.ndarray, sigma: float, smooth: int = 3,
+                   thresh: float = 3.0, min_rows: int = 2) -> list[list[float]]:
+    """Time intervals where the smoothed residual leaves its noise band."""
+    if len(r) == 0:
+        return []
+    s = uniform_filter1d(r / sigma, smooth, mode="nearest") * np.sqrt(smooth)
+    bad = np.abs(s) > thresh
+    out = []
+    i, n = 0, len(bad)
+    while i < n:
+        if bad[i]:
+            j = i
+            while j + 1 < n and bad[j + 1]:
+                j += 1
+            if j - i + 1 >= min_rows:
+                out.append([float(times[i, 0]), float(times[j, 1])])
+            i = j + 1
+        else:
+            i += 1
+    span = float(times[-1, 1] - times[0, 0])
+    return merge(out, gap=0.02 * span)
+
+
+def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict]:
+    """Level plateaus at a tank's top (overflow) and sensors stuck at an exact maximum (saturation)."""
+    tanks, sensors = {}, {}
+    n = len(rec.t)
+    min_run = max(5, int(round(3.0 / dt)))
+    for s in model.sensors:
+        if s.name not in rec.signals:
+            continue
+        y = np.asarray(rec.signals[s.name], float)
+        res = max(s.resolution, 1e-9)
+        top = float(np.max(y))
+        at = y >= top - 0.5 * res
+        if at.sum() >= max(min_run, 0.005 * n) and _longest_run(at) >= min_run and np.std(y) > 10 * res:
+            sensors[s.name] = top
+            continue  # a stuck sensor is not a level plateau
+        ys = uniform_filter1d(y, 5, mode="nearest")
+        sig = noise_sigma(y) / np.sqrt(5.0)
+        top = float(np.quantile(ys, 0.999))
+        band = max(3.0 * sig, 2.0 * res)
+        at = ys >= top - band
+        if at.sum() >= max(min_run, 0.01 * n) and _longest_run(at) >= min_run:
+            q = (top - s.offset) / s.gain
+            tk = model.tank(s.tank)
+            vol = q * tk.area if s.quantity == "level" else q
+            tanks.setdefault(s.tank, vol)
+    return tanks, sensors
+
+
+def _longest_run(mask: np.ndarray) -> int:
+    best = cur = 0
+    for v in mask:
+        cur = cur + 1 if v else 0
+        best = max(best, cur)
+    return best
+
+
+def _regimes(model: PlantModel, rec: Recording, R: np.ndarray, sigma: np.ndarray, columns: list[str],
+             times: np.ndarray, flagged: list[str], dt: float) -> list[str]:
+    """Does |residual| concentrate above a level, after pump steps, or while a valve is nearly closed?"""
+    if not flagged:
+        return []
+    t = np.arange(len(rec.t)) * dt
+    rows_k0 = np.clip(np.searchsorted(t, times[:, 0]), 0, len(t) - 1)
+    rows_k1 = np.clip(np.searchsorted(t, times[:, 1]), 1, len(t))
+    cum = {}
+
+    def window_mean(x):
+        c = np.concatenate(([0.0], np.cumsum(x)))
+        return (c[rows_k1] - c[rows_k0]) / np.maximum(rows_k1 - rows_k0, 1)
+
+    def window_max(x):
+        return np.array([np.max(x[a:b]) if b > a else 0.0 for a, b in zip(rows_k0, rows_k1)])
+
+    feats = {}
+    for s in model.sensors:
+        if s.name in rec.signals:
+            feats[f"{s.name} above"] = (window_mean(np.asarray(rec.signals[s.name], float)), "level")
+    for p in model.pumps:
+        u = np.asarray(rec.signals[p.input], float)
+        step = np.abs(np.diff(u, prepend=u[0]))
+        lookback = max(1, int(round(3.0 / dt)))
+        recent = uniform_filter1d(step, 2 * lookback + 1, origin=-lookback // 2, mode="nearest") * (2 * lookback + 1)
+        feats[f"after {p.name} steps"] = (window_max(recent), "step")
+    for v in model.valves:
+        u = np.asarray(rec.signals[v.input], float)
+        feats[f"{v.name} nearly closed"] = (-window_mean(u), "closed")
+    out = []
+    for c in flagged:
+        j = columns.index(c)
+        a = np.abs(R[:, j] / sigma[j])
+        best = None
+        for name, (f, kind) in feats.items():
+            if kind == "level":
+                qs = (0.5, 0.75, 0.9)
+            elif kind == "step":
+                qs = None
+            else:
+                qs = None
+            if kind == "step":
+                splits = [(f > 0.2, "")]
+            elif kind == "closed":
+                splits = [(f > -0.1, "")]
+            else:
+                splits = [(f > np.quantile(f, q), f" {np.quantile(f, q):.3g}") for q in qs]
+            for mask, thr in splits:
+                if mask.sum() < 3 or (~mask).sum() < 3:
+                    continue
+                inside, outside = float(np.mean(a[mask])), float(np.mean(a[~mask]))
+                contrast = inside / max(outside, 1e-9)
+                if best is None or contrast > best[0]:
+                    best = (contrast, f"{c}: mismatch {contrast:.1f}x larger {name}{thr}")
+        if best is not None and best[0] >= 2.0:
+            out.append(best[1])
+        elif best is not None:
+            out.append(f"{c}: mismatch spread over all regimes (largest contrast {best[0]:.1f}x, {best[1].split('larger ')[-1]})")
+    return out
+
+
+def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np.ndarray) -> Localisation:
+    cols = list(engine.columns)
+    loc = Localisation(kind=engine.kind, columns=cols)
+    scores = column_scores(R, sigma)
+    loc.scores = {c: s for c, s in zip(cols, scores)}
+    for c, s in loc.scores.items():
+        if s["ratio"] > FLAG_RATIO or abs(s["z"]) > FLAG_Z:
+            loc.flagged.append(c)
+    loc.flagged.sort(key=lambda c: -loc.scores[c]["ratio"])
+    for j, c in enumerate(cols):
+        if c in loc.flagged:
+            loc.intervals[c] = find_intervals(R[:, j], engine.row_times, sigma[j],
+                                              smooth=3 if engine.kind == "equation" else 25,
+                                              thresh=3.0)
+            if not loc.intervals[c]:
+                loc.intervals[c] = [[float(engine.row_times[0, 0]), float(engine.row_times[-1, 1])]]
+    sensed = {s.tank for s in model.sensors if s.name in rec.signals}
+    loc.unmeasured = [t for t in model.tank_names if t not in sensed]
+    if engine.kind == "equation":
+        flagged_tanks = [c for c in loc.flagged if c in model.tank_names]
+        near: list[str] = []
+        for t in flagged_tanks:
+            for u in [t] + sorted(tanks_touching(model, t) - {t}):
+                if u not in near:
+                    near.append(u)
+        loc.tanks = near
+    else:
+        # one simulated signal depends on every tank upstream: all tanks are suspects
+        loc.tanks = list(model.tank_names) if loc.flagged else []
+    loc.plateaus, loc.sensor_plateaus = _plateaus(model, rec, engine.dt)
+    loc.signals_present = [s for s in model.signal_names if s in rec.signals]
+    for s in model.sensors:
+        if s.name in rec.signals:
+            y = np.asarray(rec.signals[s.name], float)
+            loc.signal_span[s.name] = float(np.ptp(y)) or 1.0
+            q = (y - s.offset) / s.gain
+            tk = model.tank(s.tank)
+            v = q * tk.area if s.quantity == "level" else q
+            loc.max_volume[s.tank] = float(np.max(v))
+            loc.max_level[s.tank] = float(np.max(v)) / tk.area
+    for t in model.tanks:
+        if t.name not in loc.max_level:
+            cap = t.rim_volume() if np.isfinite(t.rim_volume()) else (t.capacity if np.isfinite(t.capacity) else 10.0 * t.area)
+            loc.max_volume[t.name] = cap
+            loc.max_level[t.name] = cap / t.area
+    loc.regimes = _regimes(model, rec, R, sigma, cols, engine.row_times, loc.flagged, engine.dt)
+    return loc

@@ -1,0 +1,124 @@
+"""Base class of the mechanism catalogue (one small subclass per family).
+
+A `Mechanism` is one hypothesis about what the nominal model leaves out: a
+family name (`leak`, `dead_time`...), the component it sits on (model names:
+T3, P1, V2, pipe23, L1...), a vector of free parameters with bounds, and
+`apply(model, theta) -> model` that edits a *copy* of the model so that it
+contains the mechanism. `candidates(model, loc)` proposes the instances worth
+fitting given a localisation (`civic.diagnose.locate.Localisation`).
+Parameters in `fixed` are set from the data (e.g. a plateau level) and not
+optimised; they still count in the information criterion.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from civic.plant.model import PlantModel
+
+
+@dataclass
+class Mechanism:
+    component: str | None
+    params: dict = field(default_factory=dict)       # name -> initial value (optimised)
+    bounds: dict = field(default_factory=dict)       # name -> (lo, hi)
+    fixed: dict = field(default_factory=dict)        # name -> value (not optimised, reported)
+    name = "mechanism"
+
+    # ---- parameter vector ---------------------------------------------------------------
+    @property
+    def names(self) -> list[str]:
+        return list(self.params)
+
+    @property
+    def x0(self) -> np.ndarray:
+        return np.array([float(self.params[k]) for k in self.names])
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.array([self.bounds[k][0] for k in self.names], float)
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.array([self.bounds[k][1] for k in self.names], float)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.params) + sum(1 for v in self.fixed.values() if isinstance(v, (int, float)))
+
+    def values(self, theta=None) -> dict:
+        out = dict(self.params) if theta is None else {k: float(v) for k, v in zip(self.names, theta)}
+        out.update(self.fixed)
+        return out
+
+    def with_values(self, theta) -> "Mechanism":
+        m = type(self)(self.component, {k: float(v) for k, v in zip(self.names, theta)},
+                       dict(self.bounds), dict(self.fixed))
+        return m
+
+    # ---- model edit -----------------------------------------------------------------------
+    def apply(self, model: PlantModel, theta=None) -> PlantModel:
+        """A copy of `model` that contains this mechanism (parameters `theta` or the current ones)."""
+        m = model.copy()
+        self.edit(m, self.values(theta))
+        return m
+
+    def edit(self, model: PlantModel, p: dict) -> None:  # in place, on a copy
+        raise NotImplementedError
+
+    @classmethod
+    def candidates(cls, model: PlantModel, loc) -> list["Mechanism"]:
+        return []
+
+    # ---- reporting ------------------------------------------------------------------------
+    @property
+    def label(self) -> str:
+        extra = f"->{self.fixed['to']}" if "to" in self.fixed else ""
+        return f"{self.name}({self.component}{extra})"
+
+    def describe(self, p: dict) -> str:
+        return ", ".join(f"{k}={_fmt(v)}" for k, v in p.items())
+
+    def report_parameters(self, theta=None) -> dict:
+        return {k: (round(float(v), 6) if isinstance(v, (int, float)) and not isinstance(v, bool) else v)
+                for k, v in self.values(theta).items()}
+
+
+def _fmt(v) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def tanks_touching(model: PlantModel, tank: str) -> set[str]:
+    """The tank and every tank a link, pump or overflow connects it to."""
+    out = {tank}
+    for lk in model.links:
+        if tank in (lk.from_, lk.to):
+            out |= {lk.from_, lk.to}
+    for p in model.pumps:
+        if tank in (p.from_, p.to):
+            out |= {p.from_, p.to}
+    for t in model.tanks:
+        if t.overflow is not None and tank in (t.name, t.overflow.to):
+            out |= {t.name, t.overflow.to}
+    out.discard("outside")
+    return out
+
+
+def sensors_of(model: PlantModel, tank: str) -> list:
+    return [s for s in model.sensors if s.tank == tank]
+
+
+def lower_tanks(model: PlantModel) -> list[str]:
+    """Tanks that receive water by gravity (orifice links, overflows): where leaks can end."""
+    out = []
+    for lk in model.links:
+        if lk.law == "orifice" and lk.to != "outside" and lk.to not in out:
+            out.append(lk.to)
+    for t in model.tanks:
+        if t.overflow is not None and t.overflow.to != "outside" and t.overflow.to not in out:
+            out.append(t.overflow.to)
+    for p in model.pumps:
+        if p.from_ != "outside" and p.from_ not in out:
+            out.append(p.from_)
+    return out

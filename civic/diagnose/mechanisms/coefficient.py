@@ -1,0 +1,45 @@
+"""Coefficient: a flow coefficient, pump gain or tank area off by more than calibration spread."""
+from __future__ import annotations
+
+from .base import Mechanism
+
+
+def coefficient_paths(model, tanks=None) -> list[tuple[str, str]]:
+    """(component, parameter path) of the model's coefficients, optionally near some tanks."""
+    out = []
+    for p in model.pumps:
+        if tanks is None or {p.from_, p.to} & set(tanks):
+            out.append((p.name, f"pump.{p.name}.gain"))
+    for lk in model.links:
+        if tanks is None or {lk.from_, lk.to} & set(tanks):
+            out.append((lk.name, f"link.{lk.name}.coeff"))
+    return out
+
+
+class Coefficient(Mechanism):
+    name = "coefficient"
+
+    def edit(self, model, p):
+        model.set(self.fixed["path"], float(self.fixed["nominal"]) * float(p["factor"]))
+
+    def values(self, theta=None):
+        v = super().values(theta)
+        v["value"] = float(v["nominal"]) * float(v["factor"])
+        return v
+
+    @property
+    def n_params(self):
+        return len(self.params)
+
+    @classmethod
+    def candidates(cls, model, loc):
+        out = []
+        for comp, path in coefficient_paths(model, loc.tanks):
+            nominal = float(model.get(path))
+            if nominal > 0:
+                out.append(cls(comp, {"factor": 1.0}, {"factor": (0.3, 3.0)},
+                               {"path": path, "nominal": nominal}))
+        return out
+
+    def describe(self, p):
+        return f"{p['path']} = {p['value']:.4g} ({(p['factor'] - 1) * 100:+.0f} % vs nominal)"

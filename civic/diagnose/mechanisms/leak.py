@@ -1,0 +1,31 @@
+"""Leak: an extra orifice from a tank to a lower tank or outside, q = c*sqrt(h)."""
+from __future__ import annotations
+
+from civic.plant.model import OUTSIDE, Link
+
+from .base import Mechanism, lower_tanks
+
+
+class Leak(Mechanism):
+    name = "leak"
+
+    def edit(self, model, p):
+        name = f"leak_{self.component}"
+        while any(lk.name == name for lk in model.links):
+            name += "_"
+        model.links.append(Link(name=name, from_=self.component, to=p["to"], coeff=float(p["c"]),
+                                law="orifice"))
+
+    @classmethod
+    def candidates(cls, model, loc):
+        cmax = max([lk.coeff for lk in model.links] + [p.gain for p in model.pumps] + [0.1])
+        out = []
+        for tank in loc.tanks:
+            for dest in lower_tanks(model) + [OUTSIDE]:
+                if dest == tank:
+                    continue
+                out.append(cls(tank, {"c": 0.02 * cmax}, {"c": (0.0, cmax)}, {"to": dest}))
+        return out
+
+    def describe(self, p):
+        return f"q = {p['c']:.4g}*sqrt(h) from {self.component} to {p['to']}"

@@ -1,0 +1,41 @@
+"""Sensor offset: y = gain*quantity + offset with an offset the datasheet does not have."""
+from __future__ import annotations
+
+from .base import Mechanism, sensors_of, tanks_touching
+
+
+class SensorOffset(Mechanism):
+    name = "sensor_offset"
+
+    def edit(self, model, p):
+        s = model.find("sensor", self.component)
+        s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
+
+    def values(self, theta=None):
+        v = super().values(theta)
+        v.pop("base", None)
+        return v
+
+    @property
+    def n_params(self):
+        return len(self.params)
+
+    @classmethod
+    def candidates(cls, model, loc):
+        out, seen = [], set()
+        near = set()
+        for t in loc.tanks:
+            near |= tanks_touching(model, t)
+        for t in model.tank_names:
+            if t not in near:
+                continue
+            for s in sensors_of(model, t):
+                if s.name in loc.signals_present and s.name not in seen:
+                    seen.add(s.name)
+                    span = max(loc.signal_span.get(s.name, 1.0), 1e-6)
+                    out.append(cls(s.name, {"offset": 0.0}, {"offset": (-0.25 * span, 0.25 * span)},
+                                   {"base": s.offset}))
+        return out
+
+    def describe(self, p):
+        return f"{self.component} reads {p['offset']:+.4g} off"

@@ -74,13 +74,49 @@ class _Plant4:
         self.model = model
         self.tidx = [model.tank_names.index(n) for n in CONTROLLED]
 
+        # precomputed flow terms for rhs3 (the generic flow_rhs is the reference)
+        m = model
+        idx = {t.name: i for i, t in enumerate(m.tanks)}
+        self._area = [t.area for t in m.tanks]
+        self._base = [30.0 if t.name == "T4" else 0.0 for t in m.tanks]
+        cmd = {n: j for j, n in enumerate(COMMANDS)}
+        self._pumps = [(p.gain * (1 - p.closure), cmd.get(p.input), p.input_offset, p.head_coeff,
+                        idx.get(p.from_), idx.get(p.to)) for p in m.pumps]
+        vin = {v.name: (cmd.get(v.input), v.exponent()) for v in m.valves}
+        self._links = [(lk.coeff * (1 - lk.closure), vin.get(lk.valve) if lk.valve else None,
+                        lk.law == "orifice", lk.exponent, lk.min_level, idx[lk.from_], idx.get(lk.to))
+                       for lk in m.links]
+
     def rhs3(self, x3, u3, V4=30.0):
-        V = np.zeros(len(self.model.tanks))
-        V[self.tidx] = x3
-        for i, t in enumerate(self.model.tanks):
-            if t.name not in CONTROLLED:
-                V[i] = V4 if t.name == "T4" else 0.0
-        return flow_rhs(self.model, V, dict(zip(COMMANDS, u3)))[self.tidx]
+        """dV/dt of T1..T3 (valves at their commands, no dead time); T4 held at V4."""
+        V = list(self._base)
+        for j, i in enumerate(self.tidx):
+            V[i] = float(x3[j])
+        h = [v / a for v, a in zip(V, self._area)]
+        d = [0.0] * len(V)
+        for g, ci, off, hc, src, dst in self._pumps:
+            u = float(u3[ci]) if ci is not None else 0.0
+            q = g * max(u - off, 0.0)
+            if dst is not None:
+                q *= max(1.0 - hc * h[dst], 0.0)
+                d[dst] += q
+            if src is not None:
+                d[src] -= q
+        for k, valve, orifice, ex, ml, src, dst in self._links:
+            if valve is not None:
+                ci, n = valve
+                u = max(float(u3[ci]), 0.0) if ci is not None else 0.0
+                k = k * (u if n == 1.0 else u ** n)
+            if orifice:
+                hh = h[src] - ml
+                q = k * hh ** ex if hh > 0 else 0.0
+            else:
+                dh = h[src] - h[dst]
+                q = k * abs(dh) ** ex if dh >= 0 else -k * (-dh) ** ex
+            d[src] -= q
+            if dst is not None:
+                d[dst] += q
+        return np.array([d[i] for i in self.tidx])
 
     def steady_input(self, x3, w=None, u_prev=None):
         """Commands in [0, 1] that hold x3 (least squares; exact when feasible)."""

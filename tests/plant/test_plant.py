@@ -258,3 +258,17 @@ def test_cli_bad_model_file(tmp_path):
 def test_to_wire_clips_and_rounds(plant):
     w = to_wire(plant, {"L1": np.array([-0.5, 0.0004, 0.0006, 70.0]), "p1": np.array([0.0, 0.5, 1.0, 0.9996])})
     assert w["l1"].tolist() == [0, 0, 1, 65535] and w["p1"].tolist() == [0, 500, 1000, 1000]
+
+
+def test_controller_rhs_matches_generic_flows(plant):
+    from civic.plant.control import _Plant4, flow_rhs
+
+    m = plant.copy()
+    m.links.append(Link("leak", "T3", "outside", 0.02))
+    m.set("valve.V2.characteristic", 1.5)
+    p = _Plant4(m)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        x, u = rng.uniform(1, 9, 3), rng.uniform(0, 1, 3)
+        ref = flow_rhs(m, np.array([*x, 30.0]), dict(zip(("p1", "v1", "v2"), u)))[:3]
+        np.testing.assert_allclose(p.rhs3(x, u), ref, atol=1e-12)

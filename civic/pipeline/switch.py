@@ -76,30 +76,34 @@ class SwitchModel:
     # -- vectorized model of a freshly reset switch
     def traces(self, messages: np.ndarray) -> tuple[np.ndarray, list[MonitorTrace]]:
         """Per plant message (indices returned) what every monitor computed."""
-        idx = np.flatnonzero(messages["plant"])
-        msgs = messages[idx]
-        slot = plant_lookup.plant_slot(msgs["src"])
-        order = np.argsort(slot, kind="stable")
-        bounds = np.flatnonzero(np.diff(slot[order])) + 1
-        groups = np.split(order, bounds) if len(order) else []
-        gap = np.zeros(len(msgs), dtype=bool)
-        for g in groups:
-            gap[g] = plant_lookup.seq_gaps(msgs["seq"][g])
-        fields = {k: msgs[k].astype(np.int64) for k in SIGNALS}
+        plant = messages["plant"]
+        idx = np.flatnonzero(plant)
+        msgs = messages if len(idx) == len(messages) else messages[idx]
+        # each plant's messages as one contiguous stretch: sort by slot once, unsort at the end
+        order = np.argsort(plant_lookup.plant_slot(msgs["src"]), kind="stable")
+        slot = plant_lookup.plant_slot(msgs["src"])[order]
+        cuts = np.concatenate(([0], np.flatnonzero(np.diff(slot)) + 1, [len(order)]))
+        spans = [slice(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+        seq = msgs["seq"][order]
+        gap = np.concatenate([plant_lookup.seq_gaps(seq[s]) for s in spans]) if spans else np.zeros(0, bool)
+        fields = {k: msgs[k].astype(np.int64)[order] for k in SIGNALS}
         traces = []
         for mon in self.entries.monitors:
             q = classification.qualified(fields, mon.ranges())
             x = fields[mon.signal]
-            run = np.zeros(len(msgs), dtype=np.int64)
-            s = np.zeros(len(msgs), dtype=np.int64)
-            for g in groups:
-                run[g] = data_collection.runs(q[g], gap[g])
-                old, s0, s1 = data_collection.window_sums(x[g], mon.ring_len)
-                s[g] = slope.lsq(s0, s1, mon.window) if mon.estimator == "lsq" else slope.endpoint(x[g], old)
-            code = np.zeros(len(msgs), dtype=np.int64)
+            run = np.zeros(len(order), dtype=np.int64)
+            s = np.zeros(len(order), dtype=np.int64)
+            for sp in spans:
+                run[sp] = data_collection.runs(q[sp], gap[sp])
+                old, s0, s1 = data_collection.window_sums(x[sp], mon.ring_len)
+                s[sp] = slope.lsq(s0, s1, mon.window) if mon.estimator == "lsq" else slope.endpoint(x[sp], old)
+            code = np.zeros(len(order), dtype=np.int64)
             ev = run >= mon.window
             code[ev] = classification.classify(s[ev], x[ev], mon.classes, mon.default_class)
-            traces.append(MonitorTrace(monitor=mon, run=run, slope=s, level=x, code=code))
+            unsort = np.empty_like(order)
+            unsort[order] = np.arange(len(order))
+            traces.append(MonitorTrace(monitor=mon, run=run[unsort], slope=s[unsort], level=x[unsort],
+                                       code=code[unsort]))
         return idx, traces
 
     def run(self, messages: np.ndarray) -> np.ndarray:

@@ -368,7 +368,7 @@ class Stepper:
     def __init__(self, model: PlantModel, x0: np.ndarray, u0: np.ndarray):
         self.cm = compile_model(model)
         self.fn = self.cm._function(False)
-        self.P = self.cm.params.tolist()
+        self.P = self.cm.params_for(model).tolist()
         self.x = [float(v) for v in x0] + [0.0]
         self.hist_len = max([a.m for a in self.cm._acts] + [0]) + 2
         self.hist = [list(map(float, u0))] * self.hist_len     # oldest first

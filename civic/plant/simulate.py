@@ -350,15 +350,51 @@ class CompiledModel:
         return X[:, :ns]
 
 
+    def params_for(self, model: PlantModel) -> np.ndarray:
+        """The parameter vector of a model with this structure (same param_names)."""
+        comp = {}
+        for kind, items in (("tank", model.tanks), ("pump", model.pumps), ("valve", model.valves),
+                            ("link", model.links)):
+            for x in items:
+                comp[(kind, x.name)] = x
+        out = np.empty(len(self.param_names))
+        for i, name in enumerate(self.param_names):
+            kind, cname, attr = name.split(".", 2)
+            x = comp[(kind, cname)]
+            if attr == "overflow.volume":
+                out[i] = x.rim_volume()
+            elif attr == "characteristic":
+                out[i] = x.exponent()
+            else:
+                out[i] = getattr(x, attr)
+        return out
+
+
+def structure_key(model: PlantModel) -> tuple:
+    """What the generated code depends on (everything but parameter values)."""
+    dt = model.dt
+    return (
+        dt, model.substeps, tuple(i.name for i in model.inputs),
+        tuple((t.name, None if t.overflow is None else t.overflow.to) for t in model.tanks),
+        tuple((p.name, p.input, p.from_, p.to, _delay_split(p.dead_time, dt)) for p in model.pumps),
+        tuple((v.name, v.input, v.tau > 0, v.exponent() != 1.0, _delay_split(v.dead_time, dt))
+              for v in model.valves),
+        tuple((lk.name, lk.from_, lk.to, lk.law, lk.valve, lk.exponent != 0.5) for lk in model.links),
+    )
+
+
 _CACHE: dict = {}
 
 
 def compile_model(model: PlantModel) -> CompiledModel:
-    """Compile (cached on the model's full content)."""
-    key = model.to_toml()
+    """Compile, cached on the model's structure; `cm.params` are the first model's values.
+
+    For another model of the same structure use `cm.params_for(model)` (simulate does).
+    """
+    key = structure_key(model)
     cm = _CACHE.get(key)
     if cm is None:
-        if len(_CACHE) > 64:
+        if len(_CACHE) > 256:
             _CACHE.clear()
         cm = _CACHE[key] = CompiledModel(model)
     return cm
@@ -439,6 +475,7 @@ def simulate(model: PlantModel, t, inputs: dict, x0, noise: bool = False, seed=N
     Returns {sensor: (n,), input: (n,) held command, "t", "volumes" (n, ntanks),
     "openings" (n, nvalves), "outside" (n,)}.
     """
+    model.validate()
     t = np.asarray(t, dtype=float)
     n = len(t)
     if n >= 2:
@@ -448,7 +485,7 @@ def simulate(model: PlantModel, t, inputs: dict, x0, noise: bool = False, seed=N
     U = inputs_matrix(model, inputs, n)
     x = _x0_vector(model, x0, U)
     cm = compile_model(model)
-    X = cm.run(U, x, params)
+    X = cm.run(U, x, cm.params_for(model) if params is None else params)
     nt = len(model.tanks)
     vol = X[:, :nt]
     rng = np.random.default_rng(seed) if noise else None

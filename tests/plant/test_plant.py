@@ -272,3 +272,17 @@ def test_controller_rhs_matches_generic_flows(plant):
         x, u = rng.uniform(1, 9, 3), rng.uniform(0, 1, 3)
         ref = flow_rhs(m, np.array([*x, 30.0]), dict(zip(("p1", "v1", "v2"), u)))[:3]
         np.testing.assert_allclose(p.rhs3(x, u), ref, atol=1e-12)
+
+
+def test_compiled_model_is_shared_across_parameter_values(plant):
+    m2 = plant.copy()
+    m2.set("link.pipe23.coeff", 0.2)
+    assert compile_model(m2) is compile_model(plant)
+    t = np.arange(100) * 0.1
+    x0 = {"T1": 8.0, "T2": 4.0, "T3": 3.0, "T4": 25.0}
+    a = simulate(plant, t, {}, x0)["volumes"]
+    b = simulate(m2, t, {}, x0)["volumes"]
+    assert b[10, 1] < a[10, 1] - 0.02               # the faster pipe drains T2 faster into T3
+    m3 = plant.copy()
+    m3.set("pump.P1.dead_time", 0.45)
+    assert compile_model(m3) is not compile_model(plant)

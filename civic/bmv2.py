@@ -281,7 +281,7 @@ class BMv2Switch:
         """Install the entries; with reset, re-push the pipeline first (zeroes every register)."""
         if reset:
             self.conn.set_pipeline(self.pipeline.p4info, self.pipeline.device_config, self.pipeline.cookie)
-        return p4rt.converge(self.conn, load_entries(entries_path), self.schema)
+        return p4rt.converge(self.conn, load_entries(entries_path), self.schema, self.pipeline)
 
     def send_frames(self, frames: Sequence[bytes], frame_timeout: float = 1.0) -> list:
         """Lockstep: each frame on port 1, its output from port 2 (None when not forwarded)."""

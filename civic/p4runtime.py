@@ -507,6 +507,10 @@ def _parse_write_error(err: grpc.RpcError, n: int) -> WriteRejected:
     return WriteRejected([(None, err.code().name, err.details() or "")], [], err.details() or "")
 
 
+class Unsupported(CivicError):
+    """The switch does not implement this P4Runtime operation (e.g. registers on BMv2)."""
+
+
 class SwitchConnection:
     """One P4Runtime session (grpcio, p4.v1 protos): arbitration, pipeline, Read, Write."""
 
@@ -537,13 +541,14 @@ class SwitchConnection:
 
     def connect(self) -> None:
         self.channel = grpc.insecure_channel(self.address)
-        try:
-            grpc.channel_ready_future(self.channel).result(timeout=self.timeout)
-        except grpc.FutureTimeoutError:
-            self.close()
-            raise CivicError(f"cannot reach switch {self.address} (no P4Runtime server answered "
-                             f"within {self.timeout:g} s)") from None
         self.stub = p4runtime_pb2_grpc.P4RuntimeStub(self.channel)
+        try:   # any answer, even UNIMPLEMENTED, means a server is there
+            self.stub.Capabilities(p4runtime_pb2.CapabilitiesRequest(), timeout=self.timeout, wait_for_ready=True)
+        except grpc.RpcError as exc:
+            if exc.code() in (grpc.StatusCode.DEADLINE_EXCEEDED, grpc.StatusCode.UNAVAILABLE):
+                self.close()
+                raise CivicError(f"cannot reach switch {self.address} (no P4Runtime server answered "
+                                 f"within {self.timeout:g} s)") from None
 
         def requests():
             while True:
@@ -642,6 +647,9 @@ class SwitchConnection:
             for resp in self.stub.Read(req, timeout=max(self.timeout, 30.0)):
                 out.extend(resp.entities)
         except grpc.RpcError as exc:
+            if exc.code() == grpc.StatusCode.UNIMPLEMENTED:
+                raise Unsupported(f"switch {self.address} does not implement this Read: "
+                                  f"{(exc.details() or '').strip()}") from None
             raise self._rpc_error("Read", exc) from None
         return out
 
@@ -708,6 +716,7 @@ class ConvergeResult:
     unchanged: int = 0
     pipeline_pushed: bool = False
     writes: int = 0           # WriteRequests sent
+    cleared: list = field(default_factory=list)   # monitor slots whose registers were zeroed
 
 
 def read_state(conn: SwitchConnection, schema: P4Schema) -> tuple[list, list]:
@@ -738,14 +747,103 @@ def _update(kind: int, te) -> p4runtime_pb2.Update:
     return u
 
 
-def converge(conn: SwitchConnection, entries: Entries, schema: P4Schema) -> ConvergeResult:
-    """Make the switch hold exactly the entries' tables; one WriteRequest per phase."""
+def _config_params(schema: P4Schema, te) -> dict:
+    if te is None or te.action.WhichOneof("type") != "action":
+        return {}
+    info = schema.action_by_id.get(te.action.action.action_id)
+    names = {p.id: p.name for p in info.params.values()} if info else {}
+    return {names.get(p.param_id, p.param_id): decode_value(p.value) for p in te.action.action.params}
+
+
+def changed_monitors(schema: P4Schema, desired: DesiredState, current_defaults: list) -> list[tuple[int, dict, dict]]:
+    """(slot, old config params, new config params) of every monitor slot whose config action changes."""
+    have = {te.table_id: te for te in current_defaults}
+    out = []
+    for te in desired.defaults:
+        name = schema.table_by_id[te.table_id].name
+        if not name.endswith(".config"):
+            continue
+        k = int(name.split(".")[-2].removeprefix("mon"))
+        old = have.get(te.table_id)
+        if old is None or action_key(old) != action_key(te):
+            out.append((k, _config_params(schema, old), _config_params(schema, te)))
+    return sorted(out, key=lambda c: c[0])
+
+
+def clear_updates(schema: P4Schema, k: int, ring_cells: int, slots=range(MAX_PLANTS), only=None) -> list:
+    """MODIFY updates writing 0 into monitor slot k's registers: ptr, run, s0, s1 of every plant
+    slot and the first `ring_cells` ring cells of every plant slot (cell = slot * stride + i)."""
+    stride = schema.ring_stride() or 0
+    ups = []
+    for r in (only or MONITOR_REGISTERS):
+        reg = schema.registers.get(mon(k, r))
+        if reg is None:
+            continue
+        if r == "ring":
+            cells = [s * stride + i for s in slots for i in range(min(ring_cells, stride))]
+        else:
+            cells = list(slots)
+        for i in cells:
+            u = p4runtime_pb2.Update(type=MODIFY)
+            u.entity.register_entry.register_id = reg.preamble.id
+            u.entity.register_entry.index.index = i
+            u.entity.register_entry.data.bitstring = b"\x00"
+            ups.append(u)
+    return ups
+
+
+def registers_writable(conn: SwitchConnection, schema: P4Schema, k: int) -> bool:
+    """Probe: zero monitor k's run counter of slot 0 (harmless: k's state is about to be cleared).
+
+    BMv2's P4Runtime server does not implement register access (p4lang/PI#376).
+    """
+    if mon(k, "run") not in schema.registers:
+        return False
+    try:
+        conn.write(clear_updates(schema, k, 0, slots=[0], only=["run"]))
+        return True
+    except WriteRejected:
+        return False
+
+
+def converge(conn: SwitchConnection, entries: Entries, schema: P4Schema,
+             pipeline: Pipeline | None = None) -> ConvergeResult:
+    """Make the switch hold exactly the entries' tables; one WriteRequest per phase.
+
+    An enabled monitor whose configuration (signal, window, estimator) changes,
+    or that is disabled, gets its registers zeroed after the tables are
+    written: its ring and running sums only make sense for the configuration
+    that filled them. When the switch cannot write registers over P4Runtime
+    (BMv2, p4lang/PI#376) the pipeline is reinstalled instead, which zeroes
+    all state; that needs `pipeline`.
+    """
     desired = desired_state(entries, schema)          # validates before anything is written
     conn.require_primary()
     current, current_defaults = read_state(conn, schema)
+    # a slot that was enabled and changes keeps state that is wrong for the new configuration;
+    # a disabled slot's registers are always zero (fresh pipeline, or zeroed when it was changed)
+    # (cells with index >= the current ring length are always zero: each change clears up to the larger one)
+    stale = {k: max(old.get("ring_len", 0), new.get("ring_len", 0))
+             for k, old, new in changed_monitors(schema, desired, current_defaults) if old.get("enabled")}
+    clear = {}
+    reinstall = False
+    if stale:
+        if registers_writable(conn, schema, min(stale)):
+            clear = stale
+        elif pipeline is not None:
+            reinstall = True
+        else:
+            raise CivicError(f"monitor slot {', '.join(map(str, sorted(stale)))} changes configuration, so its registers "
+                             f"must be zeroed, and switch {conn.address} cannot write registers over P4Runtime; "
+                             "pass --pipeline DIR to reinstall the pipeline (this clears every plant's state)")
+    pushed = False
+    if reinstall:
+        conn.set_pipeline(pipeline.p4info, pipeline.device_config, pipeline.cookie)
+        pushed = True
+        current, current_defaults = read_state(conn, schema)
     plan = make_plan(desired, current, current_defaults, schema)
     result = ConvergeResult(added=len(plan.inserts), modified=len(plan.modifies),
-                            deleted=len(plan.deletes), unchanged=plan.unchanged)
+                            deleted=len(plan.deletes), unchanged=plan.unchanged, pipeline_pushed=pushed)
     counts: dict[int, int] = {}
     for te in current:
         counts[te.table_id] = counts.get(te.table_id, 0) + 1
@@ -765,6 +863,15 @@ def converge(conn: SwitchConnection, entries: Entries, schema: P4Schema) -> Conv
             more = f" and {len(rej.failed) - 1} more" if len(rej.failed) > 1 else ""
             raise CivicError(f"switch {conn.address} rejected {where}: {code}: {msg}{more}; {rollback}") from None
         done += [inv for _, inv in items]
+    for k, cells in sorted(clear.items()):
+        try:
+            conn.write(clear_updates(schema, k, cells))
+            result.writes += 1
+        except WriteRejected as rej:
+            i, code, msg = rej.failed[0]
+            raise CivicError(f"switch {conn.address}: tables updated, but zeroing monitor slot {k}'s registers "
+                             f"failed: {code}: {msg}") from None
+        result.cleared.append(k)
     after, after_defaults = read_state(conn, schema)
     check = make_plan(desired, after, after_defaults, schema)
     if not check.empty:
@@ -881,6 +988,7 @@ def configure(address: str, entries_path: str | Path, pipeline_dir: str | Path |
     with SwitchConnection(address, device_id, election_id, timeout) as conn:
         conn.require_primary()
         schema, pushed = ensure_pipeline(conn, pipeline_dir)
-        result = converge(conn, entries, schema)
-        result.pipeline_pushed = pushed
+        pipeline = load_pipeline(pipeline_dir) if pipeline_dir is not None else None
+        result = converge(conn, entries, schema, pipeline)
+        result.pipeline_pushed = result.pipeline_pushed or pushed
         return result

@@ -86,6 +86,7 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
         self.pipelines: list[p4runtime_pb2.SetForwardingPipelineConfigRequest] = []
         self.reject_hook = None          # update -> (code, msg) | None
         self.primary_floor = 0           # election ids below this are told they are backups
+        self.register_support = True     # False: register access UNIMPLEMENTED, like BMv2 (p4lang/PI#376)
         self.cookie = 0
         self._install(p4info)
 
@@ -191,6 +192,18 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
             verdict = self.reject_hook(u)
             if verdict:
                 raise Reject(*verdict)
+        if u.entity.WhichOneof("entity") == "register_entry":
+            r = u.entity.register_entry
+            if not self.register_support:
+                raise Reject(code_pb2.UNIMPLEMENTED, "Register writes are not supported yet")
+            reg = self.r.get(r.register_id)
+            if reg is None or u.type != p4runtime_pb2.Update.MODIFY or not r.HasField("index"):
+                raise Reject(code_pb2.INVALID_ARGUMENT, "bad register write")
+            if not 0 <= r.index.index < reg.size:
+                raise Reject(code_pb2.OUT_OF_RANGE, "register index")
+            v = self._bytes(r.data.bitstring, reg.type_spec.bitstring.bit.bitwidth, "register data")
+            self.registers[r.register_id][r.index.index] = v
+            return
         te = u.entity.table_entry
         self._check_entry(te)
         if te.is_default_action:
@@ -220,7 +233,7 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
     # -- RPCs
     def Write(self, request, context):
         with self.lock:
-            self.writes.append(copy.deepcopy(request))
+            self.writes.append(request)
             if self.p4info is None:
                 context.abort(grpc.StatusCode.FAILED_PRECONDITION, "no pipeline")
             errors, failed = [], False
@@ -242,7 +255,7 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
 
     def Read(self, request, context):
         with self.lock:
-            self.reads.append(copy.deepcopy(request))
+            self.reads.append(request)
             if self.p4info is None:
                 context.abort(grpc.StatusCode.FAILED_PRECONDITION, "no pipeline")
             resp = p4runtime_pb2.ReadResponse()
@@ -257,6 +270,8 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
                         if q.table_id in (0, te.table_id):
                             resp.entities.add().table_entry.CopyFrom(te)
                 elif kind == "register_entry":
+                    if not self.register_support:
+                        context.abort(grpc.StatusCode.UNIMPLEMENTED, "Register reads are not supported yet")
                     q = ent.register_entry
                     reg = self.r.get(q.register_id)
                     if reg is None:
@@ -581,7 +596,7 @@ def test_rejected_write_rolls_back_and_reports_one_line(servicer, tmp_path):
     assert "rejected update" in msg and "RESOURCE_EXHAUSTED: no room in TCAM" in msg
     assert "rolled back the 2 updates already applied" in msg
     assert servicer.snapshot() == before                      # no half-updated table
-    assert len(servicer.writes[0].updates) == 3                # the whole INSERT phase in one request
+    assert [len(w.updates) for w in servicer.writes[:2]] == [1, 3]   # probe, then the whole INSERT phase
 
 
 def test_not_primary_refuses_to_write(servicer, tmp_path):
@@ -654,3 +669,58 @@ def test_cli_summary_and_read(servicer, tmp_path, capsys):
     assert main(["configure", "--switch", servicer.address, "--read", "--plant", "10.0.1.1",
                  "--entries", str(path)]) == 2
     assert "outside the plant prefix 10.0.0.0/24" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- register state on reconfiguration
+def set_state(fx, k, slot=1):
+    with fx.lock:
+        reg = lambda name: fx.registers[fx.by_name(name)]
+        reg(p4rt.mon(k, "ptr"))[slot] = 3
+        reg(p4rt.mon(k, "run"))[slot] = 50
+        reg(p4rt.mon(k, "s0"))[slot] = 12345
+        reg(p4rt.mon(k, "s1"))[slot] = 999
+        reg(p4rt.mon(k, "ring"))[slot * 128 + 2] = 777
+
+
+def state_of(fx, k) -> dict:
+    with fx.lock:
+        return {r: {i: v for i, v in fx.registers[fx.by_name(p4rt.mon(k, r))].items() if v}
+                for r in p4rt.MONITOR_REGISTERS}
+
+
+def test_reconfigured_monitor_gets_registers_zeroed(servicer, tmp_path):
+    p4rt.configure(servicer.address, entries_file(tmp_path))
+    set_state(servicer, 0)
+    set_state(servicer, 1)
+    raw = copy.deepcopy(ENTRIES)
+    raw["monitors"][1]["classes"].pop()           # tables only: state stays
+    res = p4rt.configure(servicer.address, entries_file(tmp_path, raw, "b.json"))
+    assert res.cleared == [] and state_of(servicer, 0)["s0"] == {1: 12345}
+    raw["monitors"][0]["window"] = 25             # monitor 0 changes: its state is meaningless now
+    res = p4rt.configure(servicer.address, entries_file(tmp_path, raw, "c.json"))
+    assert res.cleared == [0] and res.modified == 1
+    assert state_of(servicer, 0) == {r: {} for r in p4rt.MONITOR_REGISTERS}
+    assert state_of(servicer, 1)["s0"] == {1: 12345} and state_of(servicer, 1)["ring"] == {130: 777}
+    assert p4rt.configure(servicer.address, entries_file(tmp_path, raw, "c.json")).writes == 0
+
+
+def test_no_register_access_reinstalls_pipeline_or_refuses(servicer, tmp_path):
+    servicer.register_support = False             # like BMv2's P4Runtime server
+    build = tmp_path / "build"
+    build.mkdir()
+    (build / "civic.json").write_text("{}")
+    (build / "civic.p4info.txtpb").write_text(FIXTURE_P4INFO.read_text())
+    first = p4rt.configure(servicer.address, entries_file(tmp_path), build)   # fresh: enabling needs no reset
+    assert first.pipeline_pushed and len(servicer.pipelines) == 1
+    raw = copy.deepcopy(ENTRIES)
+    raw["monitors"][1]["estimator"] = "lsq"
+    changed = entries_file(tmp_path, raw, "b.json")
+    servicer.writes.clear()
+    with pytest.raises(CivicError, match="monitor slot 1 changes configuration.*pass --pipeline DIR"):
+        p4rt.configure(servicer.address, changed)
+    assert all(u.entity.WhichOneof("entity") == "register_entry" for w in servicer.writes for u in w.updates)
+    assert len(servicer.writes) == 1              # only the probe, which the switch refused
+    res = p4rt.configure(servicer.address, changed, build)
+    assert res.pipeline_pushed and len(servicer.pipelines) == 2 and res.added == 11
+    assert main(["configure", "--switch", servicer.address, "--read"]) == 0
+    assert main(["configure", "--switch", servicer.address, "--read", "--plant", "10.0.0.1"]) == 2

@@ -55,7 +55,10 @@ def run(args: argparse.Namespace) -> int:
     table.add_row(str(result.added), str(result.modified), str(result.deleted), str(result.unchanged))
     console.print(table)
     if result.pipeline_pushed:
-        console.print(f"pipeline installed from {args.pipeline}")
+        console.print(f"pipeline installed from {args.pipeline} (all register state zeroed)")
+    if result.cleared:
+        console.print("registers zeroed for reconfigured monitor slot(s) "
+                      + ", ".join(str(k) for k in result.cleared))
     console.print("switch state verified by read-back" if result.writes else
                   "already up to date: nothing written")
     return 0
@@ -80,7 +83,14 @@ def _read(args, address: str, console) -> int:
             t.add_row(name.removeprefix(p4rt.CONTROL + "."), rest)
         console.print(t)
         config = p4rt.monitor_config(schema, defaults)
-        states = p4rt.read_plant_state(conn, schema, config, slots)
+        try:
+            states = p4rt.read_plant_state(conn, schema, config, slots)
+        except p4rt.Unsupported as exc:
+            if slots:
+                raise CivicError(f"cannot read plant state: {exc} (BMv2: p4lang/PI#376; "
+                                 "use simple_switch_CLI register_read)") from None
+            console.print(f"plant state not shown: {exc}")
+            return 0
     r = Table(title="plant state" + (f" ({args.plant}, slot {slots[0]})" if slots else ""))
     for col in ("slot", "last_seq", "monitor", "run", "ptr", "s0", "s1", "ring (oldest first)"):
         r.add_column(col)

@@ -29,6 +29,9 @@ def register(sub) -> None:
     p.add_argument("-o", "--output", metavar="OUT.pcap|OUT.csv")
     p.add_argument("--plot", metavar="OUT.png")
     p.add_argument("--labels", metavar="LABELS.csv", help="append a labels row (drain/fill)")
+    p.add_argument("--schedule", metavar="TRUTH.json",
+                   help="closed loop: setpoints and tests from a truth.json 'operation' list")
+    p.add_argument("--truth", metavar="OUT.json", help="closed loop: write the operation log (truth.json style)")
     p.add_argument("--inputs", metavar="IN.csv|IN.pcap", help="open loop on these recorded commands")
     p.add_argument("--like", metavar="REC.pcap", help="replay a recording's commands and start state; RMSE table")
     p.add_argument("--init-samples", type=int, default=1, metavar="N",
@@ -73,15 +76,23 @@ def run(args) -> int:
         from civic.plant.control import run_closed_loop
 
         m = apply_faults(model, faults) if faults else model
-        duration = 600.0 if args.duration is None else args.duration
+        schedule, duration = None, args.duration
+        if args.schedule:
+            schedule, sched_dur = _load_schedule(args.schedule)
+            duration = duration if duration is not None else sched_dur
+        duration = 600.0 if duration is None else duration
         with _progress(duration) as prog:
             res = run_closed_loop(m, duration, controller=args.controller, seed=args.seed, noise=noise,
-                                  progress=prog, controller_model=model)
+                                  progress=prog, controller_model=model, schedule=schedule)
+        if args.truth:
+            _write_truth(args.truth, res, args, faults, duration)
         t, signals = res.t, res.signals
         extra = f", {sum(1 for o in res.operation if o[1].endswith(':run'))} embedded test(s)"
     else:
         if args.controller != "mpc":
             raise CivicError("--controller applies to closed-loop only")
+        if args.schedule or args.truth:
+            raise CivicError("--schedule and --truth apply to closed-loop only")
         proc = make_procedure(model, args.scenario, args.v0, faults, args.duration)
         signals = run_procedure(proc, noise=noise, seed=args.seed)
         t = proc.t
@@ -126,6 +137,36 @@ class _progress:
         if self.on:
             self.p.__exit__(*exc)
         return False
+
+
+def _load_schedule(path: str):
+    import json
+
+    from civic.plant.control import schedule_from_operation
+
+    try:
+        with open(path) as fh:
+            truth = json.load(fh)
+    except OSError as exc:
+        raise CivicError(f"cannot read {path}: {exc.strerror}") from exc
+    except json.JSONDecodeError as exc:
+        raise CivicError(f"{path}: bad JSON: {exc}") from exc
+    if not isinstance(truth, dict) or "operation" not in truth:
+        raise CivicError(f"{path}: no 'operation' list")
+    return schedule_from_operation(truth["operation"]), truth.get("duration_s")
+
+
+def _write_truth(path: str, res, args, faults: dict, duration: float) -> None:
+    import json
+
+    truth = {"mechanism": "closure" if faults else "none", "faults": faults, "controller": args.controller,
+             "seed": args.seed, "duration_s": duration, "epoch_us": int(EPOCH * 1e6),
+             "time_base": "seconds from the first message", "operation": res.operation}
+    try:
+        with open(path, "w") as fh:
+            json.dump(truth, fh, indent=1)
+    except OSError as exc:
+        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
 
 
 def _write(path: str, model, t, signals, src_ip: str, seed) -> None:

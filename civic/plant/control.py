@@ -315,7 +315,8 @@ class PIController:
 # ---------------------------------------------------------------------------------------
 # operation schedule (setpoints and embedded tests)
 # ---------------------------------------------------------------------------------------
-PREP_SETPOINT = (8.1, 7.6, 7.25)
+PREP_SETPOINT = (8.1, 7.6, 7.25)    # drain-test prep target (recorded cases end prep there)
+DRAIN_DOWN_GAIN = 0.17               # fill-test drain-down: V2 = 0.17 sqrt(L3) (fits both recorded cases)
 
 
 def random_setpoint(rng) -> list:
@@ -350,6 +351,27 @@ def make_schedule(duration: float, rng, tests: bool = True) -> list:
             continue
         ops.append((round(t, 1), "setpoints", random_setpoint(rng)))
     return ops
+
+
+def schedule_from_operation(operation: list) -> list:
+    """A truth.json "operation" list -> a schedule for run_closed_loop.
+
+    Setpoint entries are kept; a test starts where its first phase
+    (drain_test:prep, fill_test:drain_down) starts; the supervisor then runs
+    the phases by its own rules, so later phase times may differ slightly.
+    """
+    out = []
+    try:
+        for t, what, val in operation:
+            if what == "setpoints":
+                out.append((float(t), "setpoints", [float(v) for v in val]))
+            elif what in ("drain_test:prep", "fill_test:drain_down"):
+                out.append((float(t), what.split(":")[0], None))
+    except (TypeError, ValueError) as exc:
+        raise CivicError(f"bad operation list: {exc}") from exc
+    if not out or out[0][1] != "setpoints":
+        raise CivicError("operation list must start with a setpoints entry")
+    return sorted(out, key=lambda e: e[0])
 
 
 @dataclass
@@ -443,6 +465,7 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     log = [(0.0, "setpoints", [float(v) for v in sp])]
     x = np.array(x0v, float)
     t_solve = 0.0
+    last_u = np.asarray(us, float)
     for k in range(n):
         t = k * dt
         X[k] = x
@@ -496,7 +519,10 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
         elif phase == "prep":
             u = ctrl(y3, np.array(PREP_SETPOINT))
         elif phase == "drain_down":
-            u = np.array([0.0, 1.0, float(np.clip(0.25 * (y3[2] - 2.6), 0.0, 1.0))])
+            # as recorded: pump off, V1 open, V2 opened ~ 0.17 sqrt(L3) (outflow ~ proportional to L3)
+            a2 = DRAIN_DOWN_GAIN * math.sqrt(max(y3[2], 0.0))
+            a2 = float(np.clip(a2, last_u[2] - 0.005, last_u[2] + 0.005))     # positioner rate limit
+            u = np.array([0.0, 1.0, float(np.clip(a2, 0.0, 1.0))])
             ctrl.apply(u)
         elif phase == "hold":
             u = np.zeros(3)
@@ -506,6 +532,7 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
             ctrl.apply(u)
         t_solve += _time.perf_counter() - t0
         u = np.round(np.asarray(u) * 1000.0) / 1000.0       # 0.1 % command resolution
+        last_u = u
         u_full[iin] = u
         Ucmd[k] = u_full
         if k + 1 < n:

@@ -286,3 +286,19 @@ def test_compiled_model_is_shared_across_parameter_values(plant):
     m3 = plant.copy()
     m3.set("pump.P1.dead_time", 0.45)
     assert compile_model(m3) is not compile_model(plant)
+
+
+def test_cli_closed_loop_follows_a_truth_schedule(tmp_path):
+    import json
+
+    truth = ROOT / "traces" / "diagnose" / "example_leak_t3" / "truth.json"
+    out = tmp_path / "truth.json"
+    assert civic_main(["simulate", "closed-loop", "--model", str(PLANT), "--schedule", str(truth),
+                       "--duration", "130", "--seed", "1", "-o", str(tmp_path / "c.csv"), "--truth", str(out)]) == 0
+    ops = json.loads(out.read_text())["operation"]
+    want = [o for o in json.loads(truth.read_text())["operation"] if o[0] <= 120.5]
+    assert [o[1] for o in ops[:6]] == [o[1] for o in want]
+    assert [o[0] for o in ops[:6]] == [o[0] for o in want]       # drain test phases are timed
+    data = np.genfromtxt(tmp_path / "c.csv", delimiter=",", names=True)
+    run = (data["t_s"] >= 105.5) & (data["t_s"] < 120.5)
+    assert np.all(data["v2"][run] == 1000) and np.all(data["p1"][run] == 0)

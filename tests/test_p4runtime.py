@@ -724,3 +724,21 @@ def test_no_register_access_reinstalls_pipeline_or_refuses(servicer, tmp_path):
     assert res.pipeline_pushed and len(servicer.pipelines) == 2 and res.added == 11
     assert main(["configure", "--switch", servicer.address, "--read"]) == 0
     assert main(["configure", "--switch", servicer.address, "--read", "--plant", "10.0.0.1"]) == 2
+
+
+def test_configures_what_civic_train_writes(servicer, tmp_path, capsys, trained_entries):
+    """The output of training on traces/training installs, reads back equal, and is idempotent."""
+    path = tmp_path / "trained.json"
+    trained_entries.save(path)
+    entries = load_entries(path)
+    assert main(["configure", "--switch", servicer.address, "--entries", str(path)]) == 0
+    sch = schema()
+    n_classes = [len(m.classes) for m in entries.monitors]
+    for k, n in enumerate(n_classes):
+        tid = sch.table(p4rt.mon(k, "classify")).id
+        prios = sorted((te.priority for key, te in servicer.tables.items() if key[0] == tid), reverse=True)
+        assert prios == [p4rt.PRIORITY_BASE - i for i in range(n)]
+    writes = len(servicer.writes)
+    res = p4rt.configure(servicer.address, path)
+    assert res.writes == 0 and len(servicer.writes) == writes
+    assert res.unchanged == sum(n_classes) + len(entries.monitors) + 4 + 8

@@ -17,6 +17,7 @@
 """
 from __future__ import annotations
 
+import copy as _copy
 import math
 from dataclasses import dataclass, field
 
@@ -36,6 +37,19 @@ MIN_GAIN = 0.10
 MAX_FINDINGS = 3
 
 
+def fast_copy(model: PlantModel) -> PlantModel:
+    """Copy of a model deep enough for parameter edits (its parts are flat dataclasses)."""
+    def cp(x):
+        y = _copy.copy(x)
+        if getattr(y, "overflow", None) is not None:
+            y.overflow = _copy.copy(y.overflow)
+        return y
+    return PlantModel(model.name, model.dt, model.substeps, [cp(x) for x in model.inputs],
+                      [cp(x) for x in model.tanks], [cp(x) for x in model.pumps],
+                      [cp(x) for x in model.valves], [cp(x) for x in model.links],
+                      [cp(x) for x in model.sensors])
+
+
 @dataclass
 class Calibration:
     """Coefficients allowed to move within the datasheet spread, as multiplicative factors."""
@@ -52,7 +66,7 @@ class Calibration:
         return len(self.paths)
 
     def apply(self, model: PlantModel, factors, copy=True) -> PlantModel:
-        m = model.copy() if copy else model
+        m = fast_copy(model) if copy else model
         for (_, path), nom, f in zip(self.paths, self.nominal, factors):
             if float(m.get(path)) == nom:   # a Coefficient finding on the same path wins
                 m.set(path, nom * float(f))
@@ -247,7 +261,8 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         candidates.extend(fam.candidates(model, loc))
     total = len(candidates)
     if progress:
-        progress(0, total * MAX_FINDINGS, "candidates")
+        progress(0, total, "candidates")
+    planned = total
     done = 0
     for round_ in range(MAX_FINDINGS):
         results = []
@@ -262,7 +277,7 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
             finally:
                 done += 1
                 if progress:
-                    progress(done, total * MAX_FINDINGS, cand.label)
+                    progress(done, planned, cand.label)
             results.append((cand, res))
             if round_ == 0:
                 diag.tried.append({"candidate": cand.label, "val_bic": res.val_bic,
@@ -281,9 +296,13 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         diag.findings.append({"mechanism": cand, "fit": res, "dbic": dbic, "gain": gain,
                               "prev": current})
         current = res
-        candidates = [c for c in candidates if not (type(c) is type(cand) and c.component == cand.component)]
+        # later rounds: only what helped on its own in the first round (or shares its component)
+        helped = {t["candidate"] for t in diag.tried if t["dbic"] < 0}
+        candidates = [c for c in candidates if not (type(c) is type(cand) and c.component == cand.component)
+                      and c.label in helped]
+        planned += len(candidates)
     if progress:
-        progress(total * MAX_FINDINGS, total * MAX_FINDINGS, "done")
+        progress(1, 1, "done")
     diag.final = current
     diag.mismatch = True
     if chosen:

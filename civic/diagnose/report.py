@@ -1,0 +1,273 @@
+"""Diagnosis report: JSON contract, rich summary table, plot.
+
+JSON (keys required by the contract, others informative):
+{"mismatch": bool,
+ "findings": [{"mechanism", "component", "parameters", "intervals", "evidence", ...}],
+ "fit": {"before": {"rmse": {signal: float}}, "after": {"rmse": {signal: float}}, ...}}
+Times are seconds from the first message/sample.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from civic.errors import CivicError
+from civic.plant.model import PlantModel
+from civic.plant.simulate import Recording, initial_state, simulate
+
+from .compare import EquationError, SimulationError, _measured_state, rmse
+from .fit import Diagnosis
+from .locate import merge
+from scipy.ndimage import uniform_filter1d
+
+SHORT_HORIZON_S = 30.0
+
+
+def _sim_free(model: PlantModel, rec: Recording, n_init: int) -> dict:
+    n = len(rec.t)
+    t = np.arange(n) * model.dt
+    inputs = {k: np.asarray(rec.signals[k], float) for k in model.input_names}
+    x0 = initial_state(model, rec.signals, n_init)
+    return simulate(model, t, inputs, x0)
+
+
+def simulation_rmse(model: PlantModel, rec: Recording, n_init: int = 1, skip: int = 0) -> tuple[dict, dict]:
+    """Open-loop simulation driven by the recorded inputs: RMSE per measured signal (after `skip`)."""
+    sim = _sim_free(model, rec, n_init)
+    out = {}
+    for s in model.signal_names:
+        if s in rec.signals:
+            out[s] = round(rmse(sim[s][skip:], np.asarray(rec.signals[s], float)[skip:]), 6)
+    return out, sim
+
+
+def short_horizon_rmse(model: PlantModel, rec: Recording, horizon_s: float = SHORT_HORIZON_S) -> dict:
+    eng = SimulationError(model, rec, horizon_s=horizon_s)
+    return {k: round(v, 6) for k, v in eng.rmse(model).items()}
+
+
+def _finding_intervals(diag: Diagnosis, prev, res) -> list[list[float]]:
+    """Where the finding changes the fit: rows whose residual it reduces well beyond noise."""
+    eng = diag.engine
+    prob_sigma = diag.sigma
+    Rp = _resid(diag, prev) / prob_sigma
+    Ra = _resid(diag, res) / prob_sigma
+    # improvement of the squared weighted residual per row (~0 where the finding changes nothing)
+    d = np.sum(Rp ** 2 - Ra ** 2, axis=1)
+    smooth = 3 if isinstance(eng, EquationError) else 25
+    s = uniform_filter1d(d, smooth, mode="nearest")
+    on = s > 2.0
+    out, i, n = [], 0, len(on)
+    while i < n:
+        if on[i]:
+            j = i
+            while j + 1 < n and on[j + 1]:
+                j += 1
+            out.append([float(eng.row_times[i, 0]), float(eng.row_times[j, 1])])
+            i = j + 1
+        else:
+            i += 1
+    span = float(eng.row_times[-1, 1] - eng.row_times[0, 0])
+    return merge(out, gap=0.03 * span)
+
+
+def _resid(diag: Diagnosis, res) -> np.ndarray:
+    eng = diag.engine
+    if isinstance(eng, SimulationError):
+        eng.x0_extra = dict(res.x0_extra)
+    return eng.residuals(res.model)
+
+
+def _mean_rate(diag: Diagnosis, tank: str, res) -> tuple[float, float]:
+    """Mean mass-balance residual of a tank (L/s) and its z-score, for the evidence text."""
+    eng = diag.engine
+    if not isinstance(eng, EquationError) or tank not in eng.columns:
+        return float("nan"), float("nan")
+    j = eng.columns.index(tank)
+    r = _resid(diag, res)[:, j]
+    rate = float(np.mean(r)) / (eng.W * eng.dt)
+    z = float(np.mean(r) / (diag.sigma[j] / math.sqrt(len(r))))
+    return rate, z
+
+
+def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0) -> dict:
+    model = diag.model_nominal
+    eng = diag.engine
+    findings = []
+    for i, f in enumerate(diag.findings):
+        mech = f["mechanism"]
+        fitted = diag.final_all.mechanisms[i] if diag.final_all else f["fit"].mechanisms[-1]
+        params = fitted.report_parameters()
+        for k in ("base",):
+            params.pop(k, None)
+        intervals = _finding_intervals(diag, f["prev"], f["fit"])
+        ev = [f"held-out {eng.kind} error: BIC {f['dbic']:+.1f}, weighted SSE {-100 * f['gain']:+.0f} % "
+              f"vs the calibrated model without it"]
+        if isinstance(eng, EquationError):
+            tanks = [mech.component] if mech.component in eng.columns else []
+            if mech.name == "leak" and params.get("to") in eng.columns:
+                tanks.append(params["to"])
+            for t in tanks:
+                rate, z = _mean_rate(diag, t, f["prev"])
+                if math.isfinite(rate):
+                    ev.append(f"{t} mass balance: {rate:+.4f} L/s unexplained on average (z = {z:+.1f})")
+            if mech.name == "leak":
+                ev.append("concealed in closed loop: levels track their setpoints, but the actuators "
+                          "work against a loss the model does not have (mass balance of "
+                          f"{mech.component} with the recorded commands)")
+        ev += [r for r in diag.loc.regimes if r.split(":")[0] in (mech.component, params.get("to"))]
+        ev.append(fitted.describe(fitted.values()) if fitted.params or fitted.fixed else "")
+        findings.append({
+            "mechanism": mech.name,
+            "component": mech.component,
+            "parameters": params,
+            "intervals": [[round(a, 2), round(b, 2)] for a, b in intervals],
+            "evidence": "; ".join(e for e in ev if e),
+            "heldout_dbic": round(f["dbic"], 2),
+            "heldout_sse_reduction": round(f["gain"], 4),
+        })
+    skip_rows = skip
+    before, sim_before = simulation_rmse(model, rec, n_init, skip_rows)
+    after, sim_after = simulation_rmse(diag.model_improved, rec, n_init, skip_rows)
+    calib, _ = simulation_rmse(diag.model_calibrated, rec, n_init, skip_rows)
+    fit = {"before": {"rmse": before, "model": "nominal (model file)"},
+           "after": {"rmse": after, "model": "improved (calibrated + findings)"},
+           "calibrated": {"rmse": calib},
+           "mode": "open-loop simulation driven by the recorded inputs from the recorded initial state",
+           "selection_error": eng.kind}
+    if isinstance(eng, EquationError):
+        fit["before"]["rmse_short_horizon"] = short_horizon_rmse(model, rec)
+        fit["after"]["rmse_short_horizon"] = short_horizon_rmse(diag.model_improved, rec)
+        fit["short_horizon_s"] = SHORT_HORIZON_S
+        Rb = eng.residuals(model)
+        Ra = eng.residuals(diag.model_improved)
+        val = ~eng.train
+        fit["before"]["mass_balance_rmse_heldout"] = {t: round(float(np.sqrt(np.mean(Rb[val, j] ** 2))), 6)
+                                                     for j, t in enumerate(eng.columns)}
+        fit["after"]["mass_balance_rmse_heldout"] = {t: round(float(np.sqrt(np.mean(Ra[val, j] ** 2))), 6)
+                                                    for j, t in enumerate(eng.columns)}
+        fit["mass_balance_window_s"] = eng.W * eng.dt
+    fit["heldout"] = {"rows": int(np.sum(~eng.train)), "bic_calibrated": round(diag.base.val_bic, 2),
+                      "bic_final": round(diag.final.val_bic, 2)}
+    loc = diag.loc
+    report = {
+        "mismatch": bool(diag.mismatch),
+        "findings": findings,
+        "fit": fit,
+        "verdict": diag.verdict,
+        "recording": rec.path,
+        "duration_s": round(float(len(rec.t) * diag.model_nominal.dt), 3),
+        "model": diag.model_nominal.name,
+        "calibration": diag.cal_report,
+        "localisation": {
+            "error": loc.kind,
+            "flagged": loc.flagged,
+            "scores": {c: {k: round(v, 3) for k, v in s.items()} for c, s in loc.scores.items()},
+            "intervals": {c: v for c, v in loc.intervals.items()},
+            "regimes": loc.regimes,
+        },
+        "candidates": [{"candidate": t["candidate"], "heldout_dbic": round(t["dbic"], 2),
+                        "heldout_sse_reduction": round(t["val_gain"], 4)}
+                       for t in sorted(diag.tried, key=lambda x: x["dbic"])],
+    }
+    report["_sims"] = (sim_before, sim_after)
+    return report
+
+
+def write_json(report: dict, path: str | Path) -> None:
+    clean = {k: v for k, v in report.items() if not k.startswith("_")}
+    try:
+        Path(path).write_text(json.dumps(clean, indent=1, default=_json_default) + "\n")
+    except OSError as exc:
+        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))
+
+
+def print_summary(report: dict, console=None) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = console or Console()
+    head = "[bold red]MISMATCH[/]" if report["mismatch"] else "[bold green]OK[/]"
+    console.print(f"{head}: {report['verdict']}")
+    if report["findings"]:
+        t = Table(title="findings (most important first)")
+        for c in ("#", "mechanism", "component", "parameters", "held-out dBIC", "intervals (s)"):
+            t.add_column(c)
+        for i, f in enumerate(report["findings"], 1):
+            params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                               for k, v in f["parameters"].items() if k not in ("path", "nominal"))
+            iv = f["intervals"]
+            ivs = ", ".join(f"{a:g}-{b:g}" for a, b in iv[:3]) + (f" (+{len(iv) - 3})" if len(iv) > 3 else "")
+            t.add_row(str(i), f["mechanism"], str(f["component"]), params, f"{f['heldout_dbic']:+.1f}", ivs)
+        console.print(t)
+    t = Table(title="open-loop simulation RMSE (recorded inputs)")
+    t.add_column("signal")
+    t.add_column("before (nominal)", justify="right")
+    t.add_column("after (improved)", justify="right")
+    fb, fa = report["fit"]["before"], report["fit"]["after"]
+    for s in fb["rmse"]:
+        t.add_row(s, f"{fb['rmse'][s]:.4g}", f"{fa['rmse'][s]:.4g}")
+    if "rmse_short_horizon" in fb:
+        for s in fb["rmse_short_horizon"]:
+            t.add_row(f"{s} ({report['fit']['short_horizon_s']:g} s horizon)",
+                      f"{fb['rmse_short_horizon'][s]:.4g}", f"{fa['rmse_short_horizon'][s]:.4g}")
+    console.print(t)
+
+
+def plot(report: dict, diag: Diagnosis, rec: Recording, path: str | Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sim_before, sim_after = report["_sims"]
+    sigs = [s for s in diag.model_nominal.signal_names if s in rec.signals]
+    eng = diag.engine
+    extra = isinstance(eng, EquationError)
+    rows = len(sigs) + (1 if extra else 0)
+    fig, axes = plt.subplots(rows, 1, figsize=(11, 2.2 * rows + 0.6), sharex=True, squeeze=False)
+    axes = axes[:, 0]
+    t = np.arange(len(rec.t)) * diag.model_nominal.dt
+    shade = merge([iv for f in report["findings"] for iv in f["intervals"]]) or \
+        (diag.loc.all_intervals() if report["mismatch"] else [])
+    for ax, s in zip(axes, sigs):
+        ax.plot(t, rec.signals[s], color="0.55", lw=2.2, label="recorded")
+        ax.plot(t, sim_before[s], color="tab:red", lw=1.0, alpha=0.8, label="nominal")
+        ax.plot(t, sim_after[s], color="tab:blue", lw=1.0, alpha=0.8, label="improved")
+        ax.set_ylabel(s)
+    if extra:
+        ax = axes[-1]
+        Rb = eng.residuals(diag.model_nominal)
+        Ra = eng.residuals(diag.model_improved)
+        tw = eng.row_times[:, 1]
+        for j, c in enumerate(eng.columns):
+            line, = ax.plot(tw, np.cumsum(Rb[:, j]), lw=1.0, ls="--", label=f"{c} nominal")
+            ax.plot(tw, np.cumsum(Ra[:, j]), lw=1.0, color=line.get_color(), label=f"{c} improved")
+        ax.set_ylabel("cum. mass-balance\nresidual (L)")
+        ax.legend(loc="upper left", fontsize=7, ncol=4)
+    for ax in axes:
+        for a, b in shade:
+            ax.axvspan(a, b, color="orange", alpha=0.15, lw=0)
+    axes[0].legend(loc="upper right", fontsize=8, ncol=3)
+    axes[-1].set_xlabel("time (s)")
+    title = "; ".join(f"{f['mechanism']} {f['component']}" for f in report["findings"]) or \
+        ("mismatch, unexplained" if report["mismatch"] else "no significant mismatch")
+    fig.suptitle(f"civic diagnose: {title} (shaded: mismatch intervals)")
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=110)
+    except OSError as exc:
+        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
+    finally:
+        plt.close(fig)

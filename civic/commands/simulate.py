@@ -49,6 +49,9 @@ def default_model_path() -> Path:
 def run(args) -> int:
     from civic.plant.model import PlantModel
 
+    from civic.wire import ip_to_int
+
+    ip_to_int(args.src_ip)
     model = PlantModel.from_toml(args.model or default_model_path())
     if args.inputs and args.like:
         raise CivicError("give --inputs or --like, not both")

@@ -1,0 +1,56 @@
+/*
+ * CIVIC TNA -- compile-time configuration of the monitor slots.
+ *
+ * Tofino has no run-time multiplier: the MAU ALUs add, subtract, shift and
+ * do logic, nothing else. The two products of docs/pipeline.md section 3,
+ * R * old (s1 update) and (W - 1) * s0 (lsq slope), are therefore
+ * shift-and-add sums of a compile-time constant (const_mul.p4), and each
+ * monitor slot's window W, ring length R and estimator are fixed here.
+ * Changing a window means editing this file and recompiling.
+ *
+ * The control plane still sets CivicIngress.monK.config's default action
+ * set_config(enabled, signal, window, ring_len, lsq) as on v1model, but on
+ * TNA only `enabled` and `signal` are used; window, ring_len and lsq must
+ * equal the constants below (civic configure should check this) and are
+ * otherwise ignored.
+ *
+ * A product v * C is given as up to four signed power-of-two terms:
+ *     MONk_x_MUL  a0, a1, a2, a3, use, neg
+ *     C = sum over i with bit i of `use` set of (-1 if bit i of `neg`) * 2^ai
+ * term 0 must be positive. Four terms cover every C < 128 (canonical signed
+ * digit form). tests/p4/test_p4_source.py checks that each sum equals its
+ * constant and that R = W (lsq) or W - 1 (endpoint).
+ *
+ * Defaults: the two monitors of configs/monitors.toml with the lsq
+ * estimator (civic train's default).
+ */
+#ifndef _CIVIC_TNA_CONFIG_P4_
+#define _CIVIC_TNA_CONFIG_P4_
+
+// Two monitor slots (verdict bits 3..0); bridged to egress as cls1, cls0.
+#define TNA_MONITORS 2
+
+// mon0: drain_t3, lsq, W = 20, R = W = 20
+#define MON0_WINDOW 20
+#define MON0_RING_LEN 20
+#define MON0_LSQ 1
+// R = 20 = 2^4 + 2^2
+#define MON0_R_MUL 4, 2, 0, 0, 0x3, 0x0
+// W - 1 = 19 = 2^4 + 2^1 + 2^0
+#define MON0_W1_MUL 4, 1, 0, 0, 0x7, 0x0
+
+// mon1: fill_t1, lsq, W = 90, R = W = 90
+#define MON1_WINDOW 90
+#define MON1_RING_LEN 90
+#define MON1_LSQ 1
+// R = 90 = 2^6 + 2^4 + 2^3 + 2^1
+#define MON1_R_MUL 6, 4, 3, 1, 0xF, 0x0
+// W - 1 = 89 = 2^6 + 2^4 + 2^3 + 2^0
+#define MON1_W1_MUL 6, 4, 3, 0, 0xF, 0x0
+
+// Range tables are TCAM with range expansion on Tofino: keep the class
+// tables smaller than on v1model (a trained class table has tens of rows).
+#define TNA_PRECONDITION_TABLE_SIZE 64
+#define TNA_CLASSIFY_TABLE_SIZE 256
+
+#endif  /* _CIVIC_TNA_CONFIG_P4_ */

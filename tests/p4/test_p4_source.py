@@ -1,0 +1,351 @@
+"""Static checks of the P4 sources that can run without p4c.
+
+They do not compile anything. They check that the files hang together
+(every control file is included), that the control-plane names civic
+configure relies on are spelled in the source, and that the constants in
+p4src/shared/define.p4 agree with the Python side and docs/pipeline.md.
+"""
+from __future__ import annotations
+
+import random
+import re
+from pathlib import Path
+
+import pytest
+
+from civic import p4runtime, wire
+from civic.pipeline import data_collection
+
+ROOT = Path(__file__).resolve().parents[2]
+P4SRC = ROOT / "p4src"
+V1 = P4SRC / "v1model"
+TNA = P4SRC / "tna"
+MONITOR_SLOTS_V1 = 4
+MONITOR_CONTROLS = ("MonitorConfig", "Precondition", "DataCollection", "Slope", "Classification")
+
+
+def strip_comments(text: str) -> str:
+    text = re.sub(r"/\*.*?\*/", " ", text, flags=re.S)
+    return re.sub(r"//[^\n]*", " ", text)
+
+
+def defines() -> dict[str, int]:
+    """Numeric #defines of define.p4 (a define naming an earlier one takes its value)."""
+    out = {}
+    for m in re.finditer(r"^#define\s+(\w+)\s+(0x[0-9A-Fa-f]+|\d+|[A-Z_]\w*)\s*(?://.*)?$",
+                         (P4SRC / "shared/define.p4").read_text(), re.M):
+        value = m.group(2)
+        out[m.group(1)] = out[value] if value in out else int(value, 0)
+    return out
+
+
+def included(top: Path) -> list[Path]:
+    """Every file reachable through #include "..." from `top` (angle includes are system headers)."""
+    seen, todo = [], [top]
+    while todo:
+        f = todo.pop()
+        if f in seen:
+            continue
+        assert f.is_file(), f"#include of a missing file: {f}"
+        seen.append(f)
+        for inc in re.findall(r'^\s*#include\s+"([^"]+)"', f.read_text(), re.M):
+            todo.append((f.parent / inc).resolve())
+    return seen
+
+
+def source(top: Path) -> str:
+    return "\n".join(strip_comments(f.read_text()) for f in included(top))
+
+
+@pytest.mark.parametrize("arch", [V1, TNA], ids=["v1model", "tna"])
+def test_every_control_file_is_included(arch):
+    files = set(included(arch / "civic.p4"))
+    controls = sorted((arch / "include/control").glob("*.p4"))
+    assert controls, f"no control files under {arch}/include/control"
+    for f in controls + [arch / "include/parser.p4", P4SRC / "shared/define.p4", P4SRC / "shared/headers.p4"]:
+        assert f.resolve() in files, f"{f.relative_to(ROOT)} is not #included by {arch.name}/civic.p4"
+
+
+@pytest.mark.parametrize("arch", [V1, TNA], ids=["v1model", "tna"])
+def test_braces_and_parens_balance(arch):
+    for f in included(arch / "civic.p4"):
+        text = strip_comments(f.read_text())
+        for a, b in ("{}", "()", "[]"):
+            assert text.count(a) == text.count(b), f"unbalanced {a}{b} in {f.relative_to(ROOT)}"
+
+
+def test_v1model_control_plane_names():
+    """The names of civic/p4runtime.py, as p4c will derive them (see p4src/README.md)."""
+    src = source(V1 / "civic.p4")
+    # objects of CivicIngress proper: absolute @name, the P4Info drops the leading dot
+    for full in (p4runtime.TABLE_FORWARD, p4runtime.TABLE_MONITORED_PORT, p4runtime.TABLE_PLANT_PREFIX,
+                 p4runtime.ACTION_SET_EGRESS, p4runtime.ACTION_SET_MONITORED, p4runtime.ACTION_SET_PLANT,
+                 p4runtime.REGISTER_LAST_SEQ, "CivicIngress.drop"):
+        assert f'@name(".{full}")' in src, full
+    assert re.search(r"control\s+CivicIngress\s*\(", src)
+    assert re.search(r"V1Switch\s*\([^;]*CivicIngress\s*\(\)", src, re.S)
+    # monitor slot k: every monitor control instantiated once with @name("monK")
+    for k in range(MONITOR_SLOTS_V1):
+        for ctl in MONITOR_CONTROLS:
+            assert re.search(rf'@name\("mon{k}"\)\s+{ctl}\s*\(\)\s+\w+\s*;', src), f"mon{k} {ctl}"
+    # inside those controls, the objects with their local (unprefixed) names
+    for obj in ("table config", "action set_config", "table precondition", "action qualify",
+                "action disqualify", "table classify", "action set_class"):
+        assert re.search(rf"\b{obj}\b", src), obj
+    for reg in p4runtime.MONITOR_REGISTERS:
+        assert re.search(rf"register<bit<\d+>>\([A-Z_]+\)\s+{reg}\s*;", src), reg
+
+
+def test_v1model_key_and_parameter_names():
+    src = source(V1 / "civic.p4")
+    for key, kind in [("ingress_port", "exact"), ("dst_port", "exact"), ("src_addr", "lpm"),
+                      ("slope_key", "range"), ("level", "range")] + [(s, "range") for s in wire.SIGNALS]:
+        assert re.search(rf':\s*{kind}\s+@name\("{key}"\)', src), key
+    assert re.search(r"action\s+set_config\s*\(\s*bit<1>\s+enabled\s*,\s*bit<2>\s+signal\s*,\s*bit<8>\s+window\s*,"
+                     r"\s*bit<8>\s+ring_len\s*,\s*bit<1>\s+lsq\s*\)", src)
+    assert re.search(r"action\s+set_class\s*\(\s*bit<2>\s+cls\s*\)", src)
+    assert re.search(r"action\s+set_egress\s*\(\s*bit<9>\s+port\s*\)", src)
+    assert "mark_to_drop(standard_metadata)" in src
+
+
+def test_register_sizes_and_widths():
+    d = defines()
+    src = source(V1 / "civic.p4")
+    widths = {"ring": 16, "ptr": 8, "run": 8, "s0": 32, "s1": 32, "last_seq": 32}
+    for reg, w in widths.items():
+        m = re.search(rf"register<bit<(\d+)>>\((\w+)\)\s+{reg}\s*;", src)
+        assert m, reg
+        assert int(m.group(1)) == w, reg
+        size = d[m.group(2)]
+        assert size == (d["MAX_PLANTS"] * d["MAX_WINDOW"] if reg == "ring" else d["MAX_PLANTS"]), reg
+
+
+def test_constants_match_python_and_docs():
+    d = defines()
+    assert d["ETHERTYPE_IPV4"] == 0x0800
+    assert d["PLANT_PAYLOAD_LEN"] == wire.PAYLOAD_LEN
+    assert d["UDP_LEN_PLANT"] == wire.UDP_LEN
+    assert d["DEFAULT_UDP_PORT"] == wire.DEFAULT_UDP_PORT
+    assert d["MAX_PLANTS"] == p4runtime.MAX_PLANTS
+    assert d["SLOPE_BIAS"] == p4runtime.SLOPE_BIAS
+    assert d["RUN_MAX"] == data_collection.RUN_MAX
+    assert d["VERDICT_MONITORS"] == wire.MAX_MONITORS
+    assert 2 * d["MAX_MONITORS"] <= 16 and d["MAX_MONITORS"] == MONITOR_SLOTS_V1
+    assert {s: d[f"SIGNAL_{s.upper()}"] for s in p4runtime.SIGNAL_CODES} == p4runtime.SIGNAL_CODES
+    assert {n: d[f"CLASS_{n.upper()}"] for n in wire.CLASS_CODES} == wire.CLASS_CODES
+    assert d["CLASS_NOT_EVALUATED"] == 0 and d["CLASS_DEFAULT"] == wire.CLASS_CODES["error"]
+    assert d["RING_CELLS"] == d["MAX_PLANTS"] * d["MAX_WINDOW"]
+    assert d["MAX_WINDOW"] == 1 << d["MAX_WINDOW_LOG2"]
+    doc = (ROOT / "docs/pipeline.md").read_text()
+    w_lo, w_hi = map(int, re.search(r"`(\d+)\s*<=\s*W\s*<=\s*(\d+)`", doc).groups())
+    assert d["MAX_WINDOW"] == w_hi and w_lo >= 2
+    assert "0x80000000" in doc and "255" in doc
+
+
+def test_table_sizes_match_fixture_p4info():
+    """The hand-written P4Info fixture of tests/test_p4runtime.py uses the sizes the program declares."""
+    fixture = ROOT / "tests/fixtures/civic.p4info.txtpb"
+    if not fixture.exists():
+        pytest.skip("no P4Info fixture")
+    schema = p4runtime.P4Schema.from_text(fixture.read_text())
+    d = defines()
+    want = {p4runtime.TABLE_FORWARD: d["FORWARD_TABLE_SIZE"],
+            p4runtime.TABLE_MONITORED_PORT: d["MONITORED_PORT_TABLE_SIZE"],
+            p4runtime.TABLE_PLANT_PREFIX: d["PLANT_PREFIX_TABLE_SIZE"]}
+    for k in range(schema.monitor_slots()):
+        want[p4runtime.mon(k, "precondition")] = d["PRECONDITION_TABLE_SIZE"]
+        want[p4runtime.mon(k, "classify")] = d["CLASSIFY_TABLE_SIZE"]
+        want[p4runtime.mon(k, "config")] = 1
+    for name, size in want.items():
+        assert schema.table(name).size == size, name
+    assert schema.monitor_slots() == MONITOR_SLOTS_V1
+
+
+def header_fields(name: str) -> list[tuple[str, int]]:
+    text = strip_comments((P4SRC / "shared/headers.p4").read_text())
+    body = re.search(rf"header\s+{name}\s*\{{(.*?)\}}", text, re.S).group(1)
+    types = {"mac_addr_t": 48, "ipv4_addr_t": 32}
+    out = []
+    for typ, field in re.findall(r"(bit<\d+>|\w+_t)\s+(\w+)\s*;", body):
+        out.append((field, int(typ[4:-1]) if typ.startswith("bit<") else types[typ]))
+    return out
+
+
+def test_header_layouts():
+    assert sum(w for _, w in header_fields("ethernet_t")) == 8 * wire.ETH_LEN
+    assert sum(w for _, w in header_fields("ipv4_t")) == 8 * wire.IPV4_LEN
+    assert sum(w for _, w in header_fields("udp_t")) == 64
+    plant = header_fields("plant_msg_t")
+    assert sum(w for _, w in plant) == 8 * wire.PAYLOAD_LEN
+    # same fields, same order, same widths as the wire format's decoded message
+    wire_fields = [(n, wire.MESSAGE_DTYPE[n].itemsize * 8) for n in ("seq",) + wire.SIGNALS + ("verdict",)]
+    assert plant == wire_fields
+    # the verdict word sits where civic.wire patches it
+    assert 8 * (wire.OFF_VERDICT - wire.OFF_PAYLOAD) == sum(w for n, w in plant[:-1])
+
+
+def p4_checksum(hc: int, m_old: int, m_new: int) -> int:
+    """verdict.p4's statements transcribed: bit<32> sum, two folds, complement, 0 -> 0xFFFF."""
+    if hc == 0:
+        return 0
+    s = ((~hc) & 0xFFFF) + ((~m_old) & 0xFFFF) + m_new
+    s &= 0xFFFFFFFF
+    s = (s & 0xFFFF) + (s >> 16)
+    s = (s & 0xFFFF) + (s >> 16)
+    out = (~s) & 0xFFFF
+    return 0xFFFF if out == 0 else out
+
+
+def test_checksum_arithmetic_as_written_matches_the_model():
+    rng = random.Random(7)
+    cases = [(0, 0, 0), (0xFFFF, 0, 0), (0xFFFF, 0xFFFF, 0xFFFF), (1, 0, 0xFFFF), (0x1234, 0, 0)]
+    cases += [(rng.randrange(1 << 16), rng.randrange(1 << 16), rng.randrange(1 << 8)) for _ in range(20000)]
+    for hc, mo, mn in cases:
+        assert p4_checksum(hc, mo, mn) == int(wire.incremental_checksum(hc, mo, mn)), (hc, mo, mn)
+
+
+def tna_config() -> dict:
+    """#defines of the TNA config: ints, and MONk_*_MUL as tuples (a0, a1, a2, a3, use, neg)."""
+    out = {}
+    text = (TNA / "include/config.p4").read_text()
+    for m in re.finditer(r"^#define\s+(\w+)\s+([^/\n]+?)\s*(?://.*)?$", text, re.M):
+        parts = [int(v, 0) for v in m.group(2).split(",")] if re.fullmatch(r"[\dxA-Fa-f,\s]+", m.group(2)) else None
+        if parts:
+            out[m.group(1)] = parts[0] if len(parts) == 1 else tuple(parts)
+    return out
+
+
+def const_mul(v: int, a0, a1, a2, a3, use, neg) -> int:
+    """const_mul.p4 transcribed (bit<32> modular)."""
+    m = 0xFFFFFFFF
+    t = [(v << a) & m if use >> i & 1 else 0 for i, a in enumerate((a0, a1, a2, a3))]
+    u = (t[0] - t[1]) & m if neg & 2 else (t[0] + t[1]) & m
+    if neg & 12 == 0:
+        return (u + t[2] + t[3]) & m
+    if neg & 12 == 12:
+        return (u - (t[2] + t[3])) & m
+    if neg & 4:
+        return (u + (t[3] - t[2])) & m
+    return (u + (t[2] - t[3])) & m
+
+
+def mul_constant(a0, a1, a2, a3, use, neg) -> int:
+    assert not neg & 1, "term 0 must be positive"
+    return sum((-1 if neg >> i & 1 else 1) << a for i, a in enumerate((a0, a1, a2, a3)) if use >> i & 1)
+
+
+def test_tna_monitor_constants_are_consistent():
+    """Window, ring length and estimator of each TNA monitor slot are compile-time constants."""
+    c = tna_config()
+    n = c["TNA_MONITORS"]
+    assert 1 <= n <= 8
+    for k in range(n):
+        w, r, lsq = c[f"MON{k}_WINDOW"], c[f"MON{k}_RING_LEN"], c[f"MON{k}_LSQ"]
+        assert 2 <= w <= defines()["MAX_WINDOW"]
+        assert r == (w if lsq else w - 1), f"MON{k}_RING_LEN must be W (lsq) or W - 1 (endpoint)"
+        assert mul_constant(*c[f"MON{k}_R_MUL"]) == r, f"MON{k}_R_MUL is not R"
+        assert mul_constant(*c[f"MON{k}_W1_MUL"]) == w - 1, f"MON{k}_W1_MUL is not W - 1"
+        for v in (0, 1, 65535, 0x7FFFFFFF, 0xFFFFFFFF, 123456789):
+            assert const_mul(v, *c[f"MON{k}_R_MUL"]) == (v * r) & 0xFFFFFFFF
+            assert const_mul(v, *c[f"MON{k}_W1_MUL"]) == (v * (w - 1)) & 0xFFFFFFFF
+
+
+def csd_terms(c: int) -> tuple:
+    """Canonical signed digit form of 1 <= c <= 128 as config.p4 MUL arguments (most significant term first)."""
+    digits, i = [], 0
+    while c:
+        if c & 1:
+            d = 2 - (c & 3)          # +1 or -1
+            digits.append((i, d))
+            c -= d
+        c >>= 1
+        i += 1
+    digits.sort(reverse=True)
+    assert len(digits) <= 4 and digits[0][1] == 1
+    a = [sh for sh, _ in digits] + [0] * (4 - len(digits))
+    neg = sum(1 << k for k, (_, d) in enumerate(digits) if d < 0)
+    return (*a, (1 << len(digits)) - 1, neg)
+
+
+def test_every_window_has_a_four_term_decomposition():
+    for c in range(1, 129):
+        assert mul_constant(*csd_terms(c)) == c
+        assert all(const_mul(v, *csd_terms(c)) == (v * c) & 0xFFFFFFFF for v in (1, 0xFFFF, 0xFFFFFFFF))
+
+
+def p4_checksum_tna(hc: int, m_old: int, m_new: int) -> int:
+    """tna verdict.p4 transcribed: 16-bit ones' complement additions with end-around carry."""
+    if hc == 0:
+        return 0
+    n_hc, n_m = ~hc & 0xFFFF, ~m_old & 0xFFFF
+    u = (n_hc + n_m) & 0xFFFF
+    if u < n_hc:
+        u = (u + 1) & 0xFFFF
+    v = (u + m_new) & 0xFFFF
+    if v < u:
+        v = (v + 1) & 0xFFFF
+    return 0xFFFF if v == 0xFFFF else ~v & 0xFFFF
+
+
+def test_tna_checksum_arithmetic_matches_the_model():
+    rng = random.Random(11)
+    cases = [(0xFFFF, 0xFFFF, 0), (0xFFFF, 0xFFFF, 0xFFFF), (1, 1, 0), (0x8000, 0x8000, 0x8000)]
+    cases += [(a, b, c) for a in (1, 0xFFFE, 0xFFFF) for b in (0, 1, 0xFFFF) for c in (0, 1, 0xFF, 0xFFFF)]
+    cases += [(rng.randrange(1 << 16), rng.randrange(1 << 16), rng.randrange(1 << 16)) for _ in range(20000)]
+    for hc, mo, mn in cases:
+        assert p4_checksum_tna(hc, mo, mn) == int(wire.incremental_checksum(hc, mo, mn)), (hc, mo, mn)
+
+
+@pytest.mark.parametrize("window,lsq", [(20, True), (90, True), (21, True), (2, True), (128, True),
+                                        (20, False), (2, False), (127, False)])
+def test_tna_slope_key_arithmetic_matches_the_model(window, lsq):
+    """data_collection.p4 + slope.p4 (TNA) transcribed, against the software model's registers and slope."""
+    from civic.pipeline import slope as model_slope
+
+    m32, bias = 0xFFFFFFFF, 0x80000000
+    r = window if lsq else window - 1
+    r_mul, w1_mul = csd_terms(r), csd_terms(window - 1)
+    assert mul_constant(*r_mul) == r and mul_constant(*w1_mul) == window - 1
+    bias_in_product = window % 2 == 0
+
+    rng = random.Random(window)
+    ring = data_collection.RingState(1, r)
+    ring_t, ptr, s0, s1 = [0] * 128, 0, 0, 0
+    for _ in range(3 * window + 5):
+        x = rng.choice((0, 65535, rng.randrange(65536)))
+        old_model = ring.push(0, x)
+        # TNA registers and PHV arithmetic
+        p = ptr
+        ptr = 0 if p == r - 1 else p + 1
+        old = ring_t[p]
+        ring_t[p] = x
+        assert old == old_model
+        d, d_b = (x - old) & m32, ((x | bias) - old) & m32
+        t = (s0 - const_mul(old, *r_mul)) & m32
+        s0_before, s0 = s0, (s0 + d) & m32
+        s1 = (s1 + t) & m32
+        assert (s0, s1) == (int(ring.s0[0]), int(ring.s1[0]))
+        if lsq:
+            s0n = (s0_before + (d_b if bias_in_product else d)) & m32
+            prod = const_mul(s0n, *w1_mul)
+            key = (prod - (s1 << 1)) & m32 if bias_in_product else ((prod - (s1 << 1)) & m32) ^ bias
+            want = int(model_slope.lsq(ring.s0[0], ring.s1[0], window))
+        else:
+            key = d_b
+            want = int(model_slope.endpoint(x, old_model))
+        assert key == (want & m32) ^ bias
+
+
+def test_tna_names():
+    src = source(TNA / "civic.p4")
+    for full in (p4runtime.TABLE_FORWARD, p4runtime.TABLE_MONITORED_PORT, p4runtime.TABLE_PLANT_PREFIX,
+                 p4runtime.ACTION_SET_EGRESS, p4runtime.ACTION_SET_MONITORED, p4runtime.ACTION_SET_PLANT,
+                 p4runtime.REGISTER_LAST_SEQ, "CivicIngress.drop"):
+        assert f'@name(".{full}")' in src, full
+    for k in range(tna_config()["TNA_MONITORS"]):
+        assert re.search(rf'@name\("mon{k}"\)', src), k
+    for reg in p4runtime.MONITOR_REGISTERS:
+        assert re.search(rf"Register<bit<\d+>,\s*bit<\d+>>\([A-Z_]+(,\s*0)?\)\s+{reg}\s*;", src), reg
+    for obj in ("table config", "action set_config", "table precondition", "action qualify",
+                "table classify", "action set_class"):
+        assert re.search(rf"\b{obj}\b", src), obj

@@ -356,3 +356,15 @@ def test_generic_model_open_loop_on_recorded_inputs(tmp_path, capsys):
     y = np.genfromtxt(out, delimiter=",", names=True)["y_V"]
     assert y.max() <= 10.0
     assert civic_main(["simulate", "--model", str(model), "--inputs", str(rec), "-o", str(tmp_path / "x.pcap")]) == 2
+
+
+def test_valve_dead_time_is_exact(plant):
+    n = 200
+    t = np.arange(n) * 0.1
+    u = {"p1": np.full(n, 0.3), "v1": np.full(n, 0.4), "v2": (t >= 2.0 - 1e-9) * 0.8}
+    x0 = {"T1": 6.0, "T2": 5.0, "T3": 4.0, "T4": 25.0}
+    m = plant.copy()
+    m.set("valve.V2.dead_time", 0.3)
+    shifted = dict(u, v2=np.concatenate([np.zeros(3), u["v2"][:-3]]))
+    np.testing.assert_allclose(simulate(m, t, u, x0)["volumes"], simulate(plant, t, shifted, x0)["volumes"],
+                               atol=1e-12)

@@ -132,8 +132,9 @@ class BMv2Switch:
 
     def __init__(self, pipeline_dir: str | Path, *, binary: str = SWITCH_BINARY, device_id: int = 0,
                  startup_timeout: float = 20.0, log_path: str | Path | None = None,
-                 ports: tuple[int, int] = (1, 2)):
+                 ports: tuple[int, int] = (1, 2), padded_bytes: bool = True):
         self.pipeline_dir = Path(pipeline_dir)
+        self.padded_bytes = padded_bytes   # full-width byte strings: accepted by every PI version
         self.binary = binary
         self.device_id = device_id
         self.startup_timeout = startup_timeout
@@ -221,7 +222,8 @@ class BMv2Switch:
         while True:
             if self.proc.poll() is not None:
                 raise CivicError(f"{self.binary} exited with status {self.proc.returncode}: {self._log_tail()}")
-            conn = p4rt.SwitchConnection(self.address, self.device_id, election_id=1, timeout=1.0)
+            conn = p4rt.SwitchConnection(self.address, self.device_id, election_id=1, timeout=1.0,
+                                         padded_bytes=self.padded_bytes)
             try:
                 conn.connect()
                 conn.require_primary()
@@ -348,7 +350,8 @@ def output_capture(capture: Capture, frames: list, udp_port: int, plant_prefix: 
 
 def replay_bmv2(captures: Sequence[Capture], entries_path: str | Path, pipeline_dir: str | Path, *,
                 reset_between: bool = True, frame_timeout: float = 1.0, startup_timeout: float = 20.0,
-                binary: str = SWITCH_BINARY, log_path: str | Path | None = None) -> list[BMv2Output]:
+                binary: str = SWITCH_BINARY, log_path: str | Path | None = None,
+                padded_bytes: bool = True) -> list[BMv2Output]:
     """Replay captures through BMv2 (simple_switch_grpc) and return what came out, in input order.
 
     captures:      `civic.wire.Capture`s (e.g. from `read_pcap`); every frame of each is sent on
@@ -359,6 +362,9 @@ def replay_bmv2(captures: Sequence[Capture], entries_path: str | Path, pipeline_
     reset_between: re-push the pipeline before each capture, so every capture starts from zeroed
                    registers like `SwitchModel(entries).run(...)`; False carries state across captures.
     frame_timeout: seconds to wait for a frame's output on port 2 before declaring it not forwarded.
+    padded_bytes:  send full-width P4Runtime byte strings (older PI builds reject canonical ones;
+                   newer ones accept both).
+    log_path:      keep the switch's stdout/stderr there (default: a temporary file, removed).
 
     Returns one `BMv2Output` per capture: `.frames[i]` is the bytes port 2 emitted for input frame i
     (None if nothing came out), `.missing` lists those i, `.capture` holds the forwarded frames as a
@@ -369,7 +375,8 @@ def replay_bmv2(captures: Sequence[Capture], entries_path: str | Path, pipeline_
     entries = load_entries(entries_path)
     p4rt.desired_state(entries, p4rt.P4Schema(p4rt.load_pipeline(pipeline_dir).p4info))  # fail fast
     results = []
-    with BMv2Switch(pipeline_dir, binary=binary, startup_timeout=startup_timeout, log_path=log_path) as sw:
+    with BMv2Switch(pipeline_dir, binary=binary, startup_timeout=startup_timeout, log_path=log_path,
+                    padded_bytes=padded_bytes) as sw:
         for n, cap in enumerate(captures):
             sw.configure(entries_path, reset=reset_between and n > 0)
             frames = sw.send_frames([cap.frame(i) for i in range(len(cap))], frame_timeout)

@@ -80,6 +80,13 @@ def decode_value(data: bytes) -> int:
     return int.from_bytes(data, "big") if data else 0
 
 
+def padded(data: bytes, bitwidth: int) -> bytes:
+    """Full-width form ((bitwidth + 7) // 8 bytes) of a byte string, for servers that need it."""
+    n = (bitwidth + 7) // 8
+    data = canonical(data)
+    return data.rjust(n, b"\x00") if len(data) <= n else data
+
+
 # ---------------------------------------------------------------- P4Info lookups
 @dataclass
 class TableInfo:
@@ -400,6 +407,36 @@ def action_key(te: p4runtime_pb2.TableEntry) -> tuple:
     return (kind, te.action.SerializeToString(deterministic=True))
 
 
+def padded_entry(te: p4runtime_pb2.TableEntry, schema: P4Schema) -> p4runtime_pb2.TableEntry:
+    """A copy of te with every byte string at full field width (old PI/BMv2 servers reject shorter)."""
+    out = p4runtime_pb2.TableEntry()
+    out.CopyFrom(te)
+    t = schema.table_by_id.get(te.table_id)
+    widths = {m.id: m.bitwidth for m in t.keys.values()} if t else {}
+    for fm in out.match:
+        w = widths.get(fm.field_id)
+        if not w:
+            continue
+        kind = fm.WhichOneof("field_match_type")
+        if kind == "exact":
+            fm.exact.value = padded(fm.exact.value, w)
+        elif kind == "lpm":
+            fm.lpm.value = padded(fm.lpm.value, w)
+        elif kind == "range":
+            fm.range.low, fm.range.high = padded(fm.range.low, w), padded(fm.range.high, w)
+        elif kind == "ternary":
+            fm.ternary.value, fm.ternary.mask = padded(fm.ternary.value, w), padded(fm.ternary.mask, w)
+        elif kind == "optional":
+            fm.optional.value = padded(fm.optional.value, w)
+    if out.action.WhichOneof("type") == "action":
+        info = schema.action_by_id.get(out.action.action.action_id)
+        pw = {p.id: p.bitwidth for p in info.params.values()} if info else {}
+        for ap in out.action.action.params:
+            if ap.param_id in pw:
+                ap.value = padded(ap.value, pw[ap.param_id])
+    return out
+
+
 def writable_copy(te: p4runtime_pb2.TableEntry) -> p4runtime_pb2.TableEntry:
     """The parts of a read-back entry a Write may carry (no counter data, no hit times)."""
     out = p4runtime_pb2.TableEntry(table_id=te.table_id, priority=te.priority,
@@ -514,8 +551,10 @@ class Unsupported(CivicError):
 class SwitchConnection:
     """One P4Runtime session (grpcio, p4.v1 protos): arbitration, pipeline, Read, Write."""
 
-    def __init__(self, address: str, device_id: int = 0, election_id: int = 1, timeout: float = 5.0):
+    def __init__(self, address: str, device_id: int = 0, election_id: int = 1, timeout: float = 5.0,
+                 padded_bytes: bool = False):
         self.address = address
+        self.padded_bytes = padded_bytes   # send full-width byte strings instead of canonical ones
         self.device_id = device_id
         self.election_id = election_id
         self.timeout = timeout
@@ -739,9 +778,9 @@ def read_state(conn: SwitchConnection, schema: P4Schema) -> tuple[list, list]:
     return entries, defaults
 
 
-def _update(kind: int, te) -> p4runtime_pb2.Update:
+def _update(kind: int, te, schema: P4Schema | None = None) -> p4runtime_pb2.Update:
     u = p4runtime_pb2.Update(type=kind)
-    u.entity.table_entry.CopyFrom(te)
+    u.entity.table_entry.CopyFrom(padded_entry(te, schema) if schema is not None else te)
     if kind == MODIFY and te.is_default_action and not te.HasField("action"):
         u.entity.table_entry.ClearField("action")  # reset to the P4 program's default
     return u
@@ -770,7 +809,8 @@ def changed_monitors(schema: P4Schema, desired: DesiredState, current_defaults: 
     return sorted(out, key=lambda c: c[0])
 
 
-def clear_updates(schema: P4Schema, k: int, ring_cells: int, slots=range(MAX_PLANTS), only=None) -> list:
+def clear_updates(schema: P4Schema, k: int, ring_cells: int, slots=range(MAX_PLANTS), only=None,
+                  full_width: bool = False) -> list:
     """MODIFY updates writing 0 into monitor slot k's registers: ptr, run, s0, s1 of every plant
     slot and the first `ring_cells` ring cells of every plant slot (cell = slot * stride + i)."""
     stride = schema.ring_stride() or 0
@@ -783,11 +823,12 @@ def clear_updates(schema: P4Schema, k: int, ring_cells: int, slots=range(MAX_PLA
             cells = [s * stride + i for s in slots for i in range(min(ring_cells, stride))]
         else:
             cells = list(slots)
+        zero = padded(b"\x00", int(reg.type_spec.bitstring.bit.bitwidth)) if full_width else b"\x00"
         for i in cells:
             u = p4runtime_pb2.Update(type=MODIFY)
             u.entity.register_entry.register_id = reg.preamble.id
             u.entity.register_entry.index.index = i
-            u.entity.register_entry.data.bitstring = b"\x00"
+            u.entity.register_entry.data.bitstring = zero
             ups.append(u)
     return ups
 
@@ -800,7 +841,7 @@ def registers_writable(conn: SwitchConnection, schema: P4Schema, k: int) -> bool
     if mon(k, "run") not in schema.registers:
         return False
     try:
-        conn.write(clear_updates(schema, k, 0, slots=[0], only=["run"]))
+        conn.write(clear_updates(schema, k, 0, slots=[0], only=["run"], full_width=conn.padded_bytes))
         return True
     except WriteRejected:
         return False
@@ -849,14 +890,15 @@ def converge(conn: SwitchConnection, entries: Entries, schema: P4Schema,
         counts[te.table_id] = counts.get(te.table_id, 0) + 1
     done: list = []          # inverse updates of everything applied so far, in order
     for kind, items in plan.phases(schema, counts):
-        updates = [_update(kind, te) for te, _ in items]
+        pad = schema if conn.padded_bytes else None
+        updates = [_update(kind, te, pad) for te, _ in items]
         try:
             conn.write(updates)
             result.writes += 1
         except WriteRejected as rej:
             result.writes += 1
             done += [items[i][1] for i in rej.applied]
-            rollback = _rollback(conn, done)
+            rollback = _rollback(conn, done, pad)
             i, code, msg = rej.failed[0]
             where = f"update {i} ({TYPE_NAMES[kind]} {schema.describe(items[i][0])})" if i is not None else \
                 f"{TYPE_NAMES[kind]} batch"
@@ -865,7 +907,7 @@ def converge(conn: SwitchConnection, entries: Entries, schema: P4Schema,
         done += [inv for _, inv in items]
     for k, cells in sorted(clear.items()):
         try:
-            conn.write(clear_updates(schema, k, cells))
+            conn.write(clear_updates(schema, k, cells, full_width=conn.padded_bytes))
             result.writes += 1
         except WriteRejected as rej:
             i, code, msg = rej.failed[0]
@@ -882,11 +924,11 @@ def converge(conn: SwitchConnection, entries: Entries, schema: P4Schema,
     return result
 
 
-def _rollback(conn: SwitchConnection, done: list) -> str:
+def _rollback(conn: SwitchConnection, done: list, pad: P4Schema | None = None) -> str:
     """Undo applied updates (newest first); return a phrase for the error message."""
     if not done:
         return "nothing was changed"
-    undo = [_update(kind, te) for kind, te in reversed(done) if te is not None]
+    undo = [_update(kind, te, pad) for kind, te in reversed(done) if te is not None]
     try:
         for u in undo:       # one at a time: a failure must not hide the others
             conn.write([u])
@@ -980,12 +1022,13 @@ def plant_slot(ip: str, prefix: str | None = None) -> int:
 
 # ---------------------------------------------------------------- top level
 def configure(address: str, entries_path: str | Path, pipeline_dir: str | Path | None = None,
-              device_id: int = 0, election_id: int = 1, timeout: float = 5.0) -> ConvergeResult:
+              device_id: int = 0, election_id: int = 1, timeout: float = 5.0,
+              padded_bytes: bool = False) -> ConvergeResult:
     """Validate the entries file, connect, (install the pipeline,) converge. Used by `civic configure`."""
     entries = load_entries(entries_path)
     if pipeline_dir is not None:     # validate against the P4Info before touching the switch
         desired_state(entries, P4Schema(load_pipeline(pipeline_dir).p4info))
-    with SwitchConnection(address, device_id, election_id, timeout) as conn:
+    with SwitchConnection(address, device_id, election_id, timeout, padded_bytes) as conn:
         conn.require_primary()
         schema, pushed = ensure_pipeline(conn, pipeline_dir)
         pipeline = load_pipeline(pipeline_dir) if pipeline_dir is not None else None

@@ -87,6 +87,7 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
         self.reject_hook = None          # update -> (code, msg) | None
         self.primary_floor = 0           # election ids below this are told they are backups
         self.register_support = True     # False: register access UNIMPLEMENTED, like BMv2 (p4lang/PI#376)
+        self.padded_only = False         # True: only full-width byte strings, like PI before 2021
         self.cookie = 0
         self._install(p4info)
 
@@ -117,7 +118,15 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
 
     @staticmethod
     def key(te) -> tuple:
-        return te.table_id, te.priority, tuple(sorted(fm.SerializeToString(deterministic=True) for fm in te.match))
+        """Entry identity with byte strings normalised (a server compares values, not encodings)."""
+        fields = []
+        for fm in te.match:
+            kind = fm.WhichOneof("field_match_type")
+            sub = getattr(fm, kind)
+            vals = tuple(int.from_bytes(v, "big") if isinstance(v, bytes) else v
+                         for _, v in sorted((f.name, val) for f, val in sub.ListFields()))
+            fields.append((fm.field_id, kind) + vals)
+        return te.table_id, te.priority, tuple(sorted(fields))
 
     def snapshot(self) -> tuple:
         with self.lock:
@@ -125,11 +134,13 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
                     {k: v.SerializeToString(deterministic=True) for k, v in self.defaults.items()})
 
     # -- checks a P4Runtime server makes
-    @staticmethod
-    def _bytes(value: bytes, width: int, what: str):
+    def _bytes(self, value: bytes, width: int, what: str):
         if not value:
             raise Reject(code_pb2.INVALID_ARGUMENT, f"{what}: empty byte string")
-        if len(value) > 1 and value[0] == 0:
+        if self.padded_only:
+            if len(value) != (width + 7) // 8:
+                raise Reject(code_pb2.INVALID_ARGUMENT, f"{what}: bytestring has wrong size")
+        elif len(value) > 1 and value[0] == 0:
             raise Reject(code_pb2.INVALID_ARGUMENT, f"{what}: not canonical")
         v = int.from_bytes(value, "big")
         if v >> width:
@@ -305,6 +316,9 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
             if request.response_type != p4runtime_pb2.GetForwardingPipelineConfigRequest.COOKIE_ONLY:
                 resp.config.p4info.CopyFrom(self.p4info)
             return resp
+
+    def Capabilities(self, request, context):
+        return p4runtime_pb2.CapabilitiesResponse(p4runtime_api_version="1.4.1")
 
     def StreamChannel(self, request_iterator, context):
         for req in request_iterator:
@@ -742,3 +756,25 @@ def test_configures_what_civic_train_writes(servicer, tmp_path, capsys, trained_
     res = p4rt.configure(servicer.address, path)
     assert res.writes == 0 and len(servicer.writes) == writes
     assert res.unchanged == sum(n_classes) + len(entries.monitors) + 4 + 8
+
+
+def test_padded_byte_strings_for_old_servers(servicer, tmp_path, capsys):
+    servicer.padded_only = True                  # like PI before it accepted canonical byte strings
+    path = entries_file(tmp_path)
+    assert main(["configure", "--switch", servicer.address, "--entries", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "INVALID_ARGUMENT: ingress_port: bytestring has wrong size" in err
+    assert "rolled back the 8 updates already applied" in err     # entries whose bytes happened to be full width
+    assert servicer.tables == {}
+    assert main(["configure", "--switch", servicer.address, "--entries", str(path), "--padded-bytes"]) == 0
+    ins = servicer.writes[-2]
+    sch = schema()
+    fwd = next(u.entity.table_entry for u in ins.updates if u.entity.table_entry.table_id == sch.table(p4rt.TABLE_FORWARD).id)
+    assert fwd.match[0].exact.value == b"\x00\x01" and fwd.action.action.params[0].value == b"\x00\x02"
+    res = p4rt.configure(servicer.address, path, padded_bytes=True)
+    assert res.writes == 0                       # read-back compares values, not encodings
+    raw = copy.deepcopy(ENTRIES)
+    raw["monitors"][0]["window"] = 30            # register clearing with full-width zeros too
+    set_state(servicer, 0)
+    res = p4rt.configure(servicer.address, entries_file(tmp_path, raw, "b.json"), padded_bytes=True)
+    assert res.cleared == [0] and state_of(servicer, 0) == {r: {} for r in p4rt.MONITOR_REGISTERS}

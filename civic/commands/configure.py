@@ -20,6 +20,9 @@ def register(subparsers) -> None:
     p.add_argument("--device-id", type=int, default=0, metavar="N", help="P4Runtime device id (default 0)")
     p.add_argument("--election-id", type=int, default=1, metavar="N", help="election id (default 1)")
     p.add_argument("--timeout", type=float, default=5.0, metavar="S", help="connect timeout in seconds")
+    p.add_argument("--padded-bytes", action="store_true",
+                   help="send full-width byte strings (P4Runtime servers built before PI accepted the "
+                        "canonical form, e.g. older simple_switch_grpc)")
     p.add_argument("--read", action="store_true", help="print installed entries and register state")
     p.add_argument("--plant", metavar="IP", help="with --read: only this plant's state slot")
     p.set_defaults(func=run)
@@ -48,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
         return _read(args, address, console)
     if not args.entries:
         raise CivicError("--entries is required (unless --read)")
-    result = p4rt.configure(address, args.entries, args.pipeline, args.device_id, args.election_id, args.timeout)
+    result = p4rt.configure(address, args.entries, args.pipeline, args.device_id, args.election_id, args.timeout,
+                            args.padded_bytes)
     table = Table(title=f"civic configure {address} (device {args.device_id})")
     for col in ("added", "modified", "deleted", "unchanged"):
         table.add_column(col, justify="right")

@@ -24,7 +24,8 @@
 control Verdict(inout headers_t hdr, in local_metadata_t meta) {
     apply {
         bit<16> m_old = hdr.plant.verdict;
-        bit<16> m_new = 8w0 ++ meta.mon3.cls ++ meta.mon2.cls ++ meta.mon1.cls ++ meta.mon0.cls;
+        bit<16> m_new = ((bit<16>)meta.mon3.cls << 6) | ((bit<16>)meta.mon2.cls << 4)
+                      | ((bit<16>)meta.mon1.cls << 2) | (bit<16>)meta.mon0.cls;
         hdr.plant.verdict = m_new;
 
         if (hdr.udp.checksum != 0) {

@@ -74,6 +74,8 @@ STAND_IN = textwrap.dedent('''\
     ports = dict(a.split("@") for a in [sys.argv[i + 1] for i, x in enumerate(sys.argv) if x == "-i"])
     addr = sys.argv[sys.argv.index("--grpc-server-addr") + 1]
     fx = P4RuntimeFixture(None)
+    fx.canonical_only = False                    # current PI: canonical or full-width byte strings
+    fx.register_support = False                  # PI has no P4Runtime register access (p4lang/PI#376)
     server = grpc.server(futures.ThreadPoolExecutor(max_workers=4))
     p4runtime_pb2_grpc.add_P4RuntimeServicer_to_server(fx, server)
     server.add_insecure_port(addr)

@@ -88,6 +88,7 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
         self.primary_floor = 0           # election ids below this are told they are backups
         self.register_support = True     # False: register access UNIMPLEMENTED, like BMv2 (p4lang/PI#376)
         self.padded_only = False         # True: only full-width byte strings, like PI before 2021
+        self.canonical_only = True       # False: canonical or full width, like current PI
         self.cookie = 0
         self._install(p4info)
 
@@ -140,7 +141,7 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
         if self.padded_only:
             if len(value) != (width + 7) // 8:
                 raise Reject(code_pb2.INVALID_ARGUMENT, f"{what}: bytestring has wrong size")
-        elif len(value) > 1 and value[0] == 0:
+        elif self.canonical_only and len(value) > 1 and value[0] == 0:
             raise Reject(code_pb2.INVALID_ARGUMENT, f"{what}: not canonical")
         v = int.from_bytes(value, "big")
         if v >> width:

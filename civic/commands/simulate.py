@@ -7,9 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
+from civic.plant.simulate import EPOCH, write_recording
 
-EPOCH = 1767225600.0          # 2026-01-01T00:00:00Z, as in the recorded cases
-WIRE_COLUMNS = ("l1", "l2", "l3", "l4", "p1", "v1", "v2")
 
 
 def register(sub) -> None:
@@ -100,7 +99,7 @@ def run(args) -> int:
         signals = run_procedure(proc, noise=noise, seed=args.seed)
         t = proc.t
         extra = f", v0 {proc.v0:g} L, closure {proc.closure:g}"
-    _write(args.output, model, t, signals, args.src_ip, args.seed)
+    write_recording(args.output, model, t, signals, args.src_ip, args.seed)
     if args.labels:
         append_label(args.labels, label_row(Path(args.output).name, proc, args.seed, args.src_ip))
     if args.plot:
@@ -172,34 +171,6 @@ def _write_truth(path: str, res, args, faults: dict, duration: float) -> None:
         raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
 
 
-def _write(path: str, model, t, signals, src_ip: str, seed) -> None:
-    from civic.plant.simulate import to_wire
-
-    fields = to_wire(model, signals)
-    has_wire = all(c in fields for c in WIRE_COLUMNS)
-    try:
-        if path.endswith(".pcap"):
-            if not has_wire:
-                raise CivicError(f"model {model.name} does not map to the plant message (l1..v2); write a .csv")
-            from civic.wire import build_frames, write_pcap
-
-            seq0 = int(np.random.default_rng(seed).integers(0, 2**32)) if seed is not None else 0
-            frames = build_frames({c: fields[c] for c in WIRE_COLUMNS}, src_ip=src_ip, seq0=seq0)
-            write_pcap(path, EPOCH + np.asarray(t), frames)
-        elif has_wire:
-            cols = np.column_stack([np.asarray(t)] + [fields[c] for c in WIRE_COLUMNS])
-            with open(path, "w") as fh:
-                fh.write("t_s," + ",".join(WIRE_COLUMNS) + "\n")
-                for row in cols:
-                    fh.write(f"{row[0]:.10g}," + ",".join(str(int(v)) for v in row[1:]) + "\n")
-        else:
-            names = [n for n in model.input_names + model.signal_names if n in signals]
-            cols = np.column_stack([np.asarray(t)] + [signals[n] for n in names])
-            np.savetxt(path, cols, delimiter=",", header="t_s," + ",".join(names), comments="", fmt="%.10g")
-    except OSError as exc:
-        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
-
-
 def _open_loop(args, model) -> int:
     from civic.plant.simulate import initial_state, load_recording, simulate
 
@@ -235,7 +206,7 @@ def _open_loop(args, model) -> int:
     for name, r, mx in rows:
         print(f"{name:<8} {r:>10.4g} {mx:>10.4g}")
     if args.output:
-        _write(args.output, model, t, sim, args.src_ip, args.seed)
+        write_recording(args.output, model, t, sim, args.src_ip, args.seed)
         print(f"-> {args.output}")
     if args.plot:
         _plot_compare(args.plot, model, t, rec.signals, sim, Path(src).name)

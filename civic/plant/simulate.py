@@ -634,3 +634,34 @@ def _fit_unmeasured(model, signals, x0, missing, n_init):
         if best is None or sol.cost < best.cost:
             best = sol
     return {name: float(v) for name, v in zip(missing, best.x)}
+
+
+EPOCH = 1767225600.0          # 2026-01-01T00:00:00Z, as in the recorded cases
+WIRE_COLUMNS = ("l1", "l2", "l3", "l4", "p1", "v1", "v2")
+
+
+def write_recording(path: str, model: PlantModel, t, signals: dict, src_ip: str = "10.0.0.1", seed=None) -> None:
+    """A simulated run as a pcap in the wire format (random first seq from seed) or a CSV."""
+    fields = to_wire(model, signals)
+    has_wire = all(c in fields for c in WIRE_COLUMNS)
+    try:
+        if str(path).endswith(".pcap"):
+            if not has_wire:
+                raise CivicError(f"model {model.name} does not map to the plant message (l1..v2); write a .csv")
+            from civic.wire import build_frames, write_pcap
+
+            seq0 = int(np.random.default_rng(seed).integers(0, 2**32)) if seed is not None else 0
+            frames = build_frames({c: fields[c] for c in WIRE_COLUMNS}, src_ip=src_ip, seq0=seq0)
+            write_pcap(path, EPOCH + np.asarray(t), frames)
+        elif has_wire:
+            cols = np.column_stack([np.asarray(t)] + [fields[c] for c in WIRE_COLUMNS])
+            with open(path, "w") as fh:
+                fh.write("t_s," + ",".join(WIRE_COLUMNS) + "\n")
+                for row in cols:
+                    fh.write(f"{row[0]:.10g}," + ",".join(str(int(v)) for v in row[1:]) + "\n")
+        else:
+            names = [n for n in model.input_names + model.signal_names if n in signals]
+            cols = np.column_stack([np.asarray(t)] + [signals[n] for n in names])
+            np.savetxt(path, cols, delimiter=",", header="t_s," + ",".join(names), comments="", fmt="%.10g")
+    except OSError as exc:
+        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc

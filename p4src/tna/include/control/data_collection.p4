@@ -26,7 +26,7 @@
 control DataCollection(in bit<8> slot, in bit<1> gap, inout monitor_md_t m)
                       (bit<8> ring_len,
                        bit<8> r_a0, bit<8> r_a1, bit<8> r_a2, bit<8> r_a3,
-                       bit<4> r_use, bit<4> r_neg) {
+                       bit<4> r_used, bit<4> r_negs) {
 
     Register<bit<32>, bit<15>>(RING_CELLS, 0) ring;
     Register<bit<8>, bit<8>>(MAX_PLANTS, 0) ptr;
@@ -35,7 +35,7 @@ control DataCollection(in bit<8> slot, in bit<1> gap, inout monitor_md_t m)
     Register<bit<32>, bit<8>>(MAX_PLANTS, 0) s1;
 
     Hash<bit<15>>(HashAlgorithm_t.IDENTITY) ring_index;
-    ConstMul(r_a0, r_a1, r_a2, r_a3, r_use, r_neg) r_mul;
+    ConstMul(r_a0, r_a1, r_a2, r_a3, r_used, r_negs) r_mul;
 
     // run = 0 (precondition fails)
     RegisterAction<bit<8>, bit<8>, bit<8>>(run) run_clear = {

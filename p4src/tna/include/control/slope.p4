@@ -19,9 +19,9 @@
 control Slope(inout monitor_md_t m)
              (bool lsq, bool bias_in_product,
               bit<8> w_a0, bit<8> w_a1, bit<8> w_a2, bit<8> w_a3,
-              bit<4> w_use, bit<4> w_neg) {
+              bit<4> w_used, bit<4> w_negs) {
 
-    ConstMul(w_a0, w_a1, w_a2, w_a3, w_use, w_neg) w1_mul;
+    ConstMul(w_a0, w_a1, w_a2, w_a3, w_used, w_negs) w1_mul;
 
     apply {
         if (lsq) {

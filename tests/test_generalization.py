@@ -42,3 +42,18 @@ def test_default_training_holds_at_other_start_levels(simulated, tmp_path):
 def test_paper_mode_does_not(simulated, tmp_path):
     s = macro_f1(simulated, ["--estimator", "endpoint", "--no-banded"], tmp_path)
     assert s["macro_f1"] < 0.85
+
+
+def test_tables_from_the_model_alone_classify_the_real_recordings(capsys, tmp_path):
+    assert main(["train", "--from-model", "-o", str(tmp_path / "m.json")]) == 0
+    assert main(["replay", *map(str, sorted(TRAINING.glob("*.pcap"))), "-o", str(tmp_path / "out"),
+                 "--entries", str(tmp_path / "m.json")]) == 0
+    assert main(["evaluate", str(tmp_path / "out"), "--labels", str(TRAINING / "labels.csv"),
+                 "--json", str(tmp_path / "s.json")]) == 0
+    report = json.loads((tmp_path / "s.json").read_text())["monitors"]
+    assert report["drain_t3"]["macro_f1"] >= 0.98 and report["fill_t1"]["macro_f1"] >= 0.98
+
+
+def test_train_needs_exactly_one_source(capsys, tmp_path):
+    assert main(["train", "-o", str(tmp_path / "x.json")]) == 2
+    assert "TRAINING_DIR or --from-model" in capsys.readouterr().err

@@ -17,7 +17,7 @@
  * A product v * C is given as up to four signed power-of-two terms:
  *     MONk_x_MUL  a0, a1, a2, a3, used, negs
  *     C = sum over i with bit i of `used` set of (-1 if bit i of `negs`) * 2^ai
- * term 0 must be positive. Four terms cover every C < 128 (canonical signed
+ * term 0 must be positive. Four terms cover every C <= 128 (canonical signed
  * digit form). tests/p4/test_p4_source.py checks that each sum equals its
  * constant and that R = W (lsq) or W - 1 (endpoint).
  *

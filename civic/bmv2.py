@@ -83,7 +83,9 @@ def _open_ns_sockets(netns: str, send_if: str, recv_if: str) -> tuple[socket.soc
     def worker():
         try:
             libc = ctypes.CDLL(None, use_errno=True)
-            with open(f"/var/run/netns/{netns}") as f:
+            path = next((d for d in (f"/run/netns/{netns}", f"/var/run/netns/{netns}") if os.path.exists(d)),
+                        f"/run/netns/{netns}")
+            with open(path) as f:
                 if libc.setns(f.fileno(), CLONE_NEWNET) != 0:
                     err = ctypes.get_errno()
                     raise OSError(err, f"setns({netns}): {os.strerror(err)}")
@@ -147,6 +149,7 @@ class BMv2Switch:
         self.proc: subprocess.Popen | None = None
         self.conn: p4rt.SwitchConnection | None = None
         self.tx = self.rx = None
+        self._log = None
         self._netns_made = False
         self._host_if_made = False
 
@@ -268,15 +271,16 @@ class BMv2Switch:
                         pass
                     self.proc.wait(timeout=5)
             self.proc = None
+        if self._log is not None:
             self._log.close()
+            self._log = None
         if self._host_if_made:
             _run(["ip", "link", "del", "dev", self.host_if], "deleting control veth", check=False)
             self._host_if_made = False
         if self._netns_made:
             _run(["ip", "netns", "delete", self.netns], "deleting namespace", check=False)
             self._netns_made = False
-        if self.log_path.parent == self.tmp and not getattr(self, "keep_log", False):
-            shutil.rmtree(self.tmp, ignore_errors=True)
+        shutil.rmtree(self.tmp, ignore_errors=True)   # the log lives here unless log_path was given
 
     # -- use
     def configure(self, entries_path: str | Path, reset: bool = False) -> p4rt.ConvergeResult:
@@ -295,27 +299,36 @@ class BMv2Switch:
                 self.tx.send(frame)
             except OSError as exc:
                 raise CivicError(f"frame {i} ({len(frame)} bytes) cannot be sent on a veth: {exc.strerror}") from None
-            got = self._recv(frame_timeout)
-            if got is not None:
-                late = [j for j in range(max(0, i - 8), i) if out[j] is None and _same_frame(got, bytes(frames[j]))]
-                if late and not _same_frame(got, frame):
+            got, strays = self._recv(frame_timeout, frame)
+            for stray in strays:
+                late = [j for j in range(max(0, i - 8), i) if out[j] is None and _same_frame(stray, bytes(frames[j]))]
+                if late:
                     raise CivicError(f"output of frame {late[-1]} arrived after {frame_timeout:g} s; "
                                      "raise frame_timeout")
             out.append(got)
         return out
 
-    def _recv(self, timeout: float) -> bytes | None:
+    def _recv(self, timeout: float, expect: bytes, grace: float = 0.05) -> tuple[bytes | None, list]:
+        """(output of `expect`, other frames seen meanwhile).
+
+        The output is the first frame on the output port that is `expect` up to verdict and
+        checksum; if only other frames come (a switch that changed more), the first of them,
+        after waiting `grace` seconds more for a matching one.
+        """
         deadline = time.monotonic() + timeout
+        seen: list = []
         while True:
             left = deadline - time.monotonic()
-            if left <= 0:
-                return None
-            ready, _, _ = select.select([self.rx], [], [], left)
-            if not ready:
-                return None
+            if left <= 0 or not select.select([self.rx], [], [], left)[0]:
+                return (seen[0] if seen else None), seen[1:]
             data, addr = self.rx.recvfrom(65535)
-            if addr[2] != PACKET_OUTGOING:
-                return data
+            if addr[2] == PACKET_OUTGOING:
+                continue
+            if _same_frame(data, expect):
+                return data, seen
+            if not seen:
+                deadline = min(deadline, time.monotonic() + grace)
+            seen.append(data)
 
     def _drain(self) -> None:
         while select.select([self.rx], [], [], 0)[0]:

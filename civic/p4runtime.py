@@ -552,8 +552,9 @@ class SwitchConnection:
     """One P4Runtime session (grpcio, p4.v1 protos): arbitration, pipeline, Read, Write."""
 
     def __init__(self, address: str, device_id: int = 0, election_id: int = 1, timeout: float = 5.0,
-                 padded_bytes: bool = False):
+                 padded_bytes: bool = False, arbitrate: bool = True):
         self.address = address
+        self.arbitrate = arbitrate         # False: read-only session, no StreamChannel (Read needs none)
         self.padded_bytes = padded_bytes   # send full-width byte strings instead of canonical ones
         self.device_id = device_id
         self.election_id = election_id
@@ -588,6 +589,8 @@ class SwitchConnection:
                 self.close()
                 raise CivicError(f"cannot reach switch {self.address} (no P4Runtime server answered "
                                  f"within {self.timeout:g} s)") from None
+        if not self.arbitrate:
+            return
 
         def requests():
             while True:
@@ -641,6 +644,8 @@ class SwitchConnection:
             self.channel = None
 
     def require_primary(self) -> None:
+        if not self.arbitrate:
+            raise CivicError("internal: a read-only session cannot write")
         if not self.primary:
             raise CivicError(f"switch {self.address} device {self.device_id}: another controller is primary "
                              f"(election id above {self.election_id}); pass a higher --election-id")

@@ -20,6 +20,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +90,8 @@ STAND_IN = textwrap.dedent('''\
             continue
         if len(data) >= 62:
             data = data[:61] + bytes([data[61] ^ 0x5A]) + data[62:]
+        if data[0] == 0xEE:                      # "bug": a byte a switch must never change
+            data = data[:30] + bytes([data[30] ^ 1]) + data[31:]
         tx.send(data)
 ''')
 
@@ -155,11 +158,14 @@ def test_plumbing_order_missing_and_cleanup(stand_in, tmp_path, made):
     frames = [bytes(plant(seq=i + 1, l3=5000 + i)) for i in range(12)]
     frames.insert(5, b"\xff" * 6 + frames[0][6:])                  # broadcast: the stand-in drops it
     frames.append(bytes(plant(seq=99)) + b"\xee" * 7)              # trailer bytes survive
+    frames.append(b"\xee" + frames[1][1:])                          # the stand-in corrupts this one
     write_pcap(tmp_path / "a.pcap", np.arange(len(frames)) * 0.1, frames)
     write_pcap(tmp_path / "b.pcap", np.arange(3) * 0.1, frames[:3])
     caps = [read_pcap(tmp_path / "a.pcap"), read_pcap(tmp_path / "b.pcap")]
 
+    t0 = time.monotonic()
     out = replay_bmv2(caps, entries_json(tmp_path), build, frame_timeout=0.3, startup_timeout=15)
+    assert time.monotonic() - t0 < 10     # the corrupted frame costs a short grace, not a timeout
 
     assert [o.missing for o in out] == [[5], []]
     for o, cap in zip(out, caps):
@@ -169,9 +175,11 @@ def test_plumbing_order_missing_and_cleanup(stand_in, tmp_path, made):
                 assert o.frames[i] is None
                 continue
             want = sent[:61] + bytes([sent[61] ^ 0x5A]) + sent[62:]
+            if sent[0] == 0xEE:
+                want = want[:30] + bytes([want[30] ^ 1]) + want[31:]
             assert o.frames[i] == want, i                          # in input order, byte for byte
     a = out[0].capture
-    assert len(a) == len(caps[0]) - 1 and a.frame(len(a) - 1).endswith(b"\xee" * 7)
+    assert len(a) == len(caps[0]) - 1 and a.frame(len(a) - 2).endswith(b"\xee" * 7)
     assert np.array_equal(a.messages["t"], np.delete(caps[0].messages["t"], 5))
     assert np.array_equal(a.messages["verdict"][:5], np.full(5, 0x5A))
     # nothing left behind

@@ -666,6 +666,7 @@ def test_cli_summary_and_read(servicer, tmp_path, capsys):
         for i in range(20):
             reg(p4rt.mon(0, "ring"))[1 * 128 + i] = 100 + i
         reg(p4rt.REGISTER_LAST_SEQ)[9] = 5                      # another plant
+    servicer.primary_floor = 100                 # another controller is primary: reading needs no session
     assert main(["configure", "--switch", servicer.address, "--read", "--plant", "10.0.0.1"]) == 0
     out = capsys.readouterr().out
     assert "4242" in out and "mon0" in out and "mon1" in out and "600" in out

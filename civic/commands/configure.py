@@ -76,7 +76,7 @@ def _read(args, address: str, console) -> int:
 
     prefix = load_entries(args.entries).plant_prefix if args.entries else None
     slots = [p4rt.plant_slot(args.plant, prefix)] if args.plant else None
-    with p4rt.SwitchConnection(address, args.device_id, args.election_id, args.timeout) as conn:
+    with p4rt.SwitchConnection(address, args.device_id, args.election_id, args.timeout, arbitrate=False) as conn:
         schema, _ = p4rt.ensure_pipeline(conn, None)
         entries, defaults = p4rt.read_state(conn, schema)
         t = Table(title=f"entries on {address}")

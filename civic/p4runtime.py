@@ -513,6 +513,22 @@ def make_plan(desired: DesiredState, current: list, current_defaults: list, sche
 
 
 # ---------------------------------------------------------------- connection
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while True:
+        b = n & 0x7F
+        n >>= 7
+        out.append(b | (0x80 if n else 0))
+        if not n:
+            return bytes(out)
+
+
+def legacy_device_config(device_data: bytes) -> bytes:
+    """p4.tmp.P4DeviceConfig{reassign: true, device_data} serialized (PI's proto/p4/tmp/p4config.proto:
+    bool reassign = 1; Extras extras = 2; bytes device_data = 3), for PI builds that require it."""
+    return b"\x08\x01" + b"\x1a" + _varint(len(device_data)) + device_data
+
+
 class WriteRejected(Exception):
     """A Write the switch refused: per-update (index, code name, message) for failed updates."""
 
@@ -669,6 +685,8 @@ class SwitchConnection:
             raise self._rpc_error("GetForwardingPipelineConfig", exc) from None
 
     def set_pipeline(self, p4info: p4info_pb2.P4Info, device_config: bytes, cookie: int) -> None:
+        """VERIFY_AND_COMMIT. The BMv2 JSON goes as is; PI builds that only take the deprecated
+        p4.tmp.P4DeviceConfig wrapper say so (INVALID_ARGUMENT) and get it on a second try."""
         self.require_primary()
         req = p4runtime_pb2.SetForwardingPipelineConfigRequest(
             device_id=self.device_id,
@@ -677,6 +695,14 @@ class SwitchConnection:
         req.config.p4info.CopyFrom(p4info)
         req.config.p4_device_config = device_config
         req.config.cookie.cookie = cookie
+        try:
+            self.stub.SetForwardingPipelineConfig(req, timeout=max(self.timeout, 30.0))
+            return
+        except grpc.RpcError as exc:
+            legacy = exc.code() == grpc.StatusCode.INVALID_ARGUMENT and "P4DeviceConfig" in (exc.details() or "")
+            if not legacy:
+                raise self._rpc_error("SetForwardingPipelineConfig", exc) from None
+        req.config.p4_device_config = legacy_device_config(device_config)
         try:
             self.stub.SetForwardingPipelineConfig(req, timeout=max(self.timeout, 30.0))
         except grpc.RpcError as exc:

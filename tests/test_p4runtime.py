@@ -89,6 +89,8 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
         self.register_support = True     # False: register access UNIMPLEMENTED, like BMv2 (p4lang/PI#376)
         self.padded_only = False         # True: only full-width byte strings, like PI before 2021
         self.canonical_only = True       # False: canonical or full width, like current PI
+        self.legacy_device_config = False  # True: p4_device_config must be a p4.tmp.P4DeviceConfig (old PI)
+        self.device_data = b""
         self.cookie = 0
         self._install(p4info)
 
@@ -302,8 +304,22 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
             self.pipelines.append(copy.deepcopy(request))
             if request.action != p4runtime_pb2.SetForwardingPipelineConfigRequest.VERIFY_AND_COMMIT:
                 context.abort(grpc.StatusCode.UNIMPLEMENTED, "only VERIFY_AND_COMMIT")
-            if not request.config.p4_device_config:
+            data = request.config.p4_device_config
+            if not data:
                 context.abort(grpc.StatusCode.INVALID_ARGUMENT, "no device config")
+            if self.legacy_device_config:
+                if not data.startswith(b"\x08\x01\x1a"):     # reassign: true, then device_data (field 3)
+                    context.abort(grpc.StatusCode.INVALID_ARGUMENT,
+                                  "Invalid 'p4_device_config', not an instance of p4::tmp::P4DeviceConfig")
+                n, shift, i = 0, 0, 3
+                while True:
+                    n |= (data[i] & 0x7F) << shift
+                    shift += 7
+                    i += 1
+                    if not data[i - 1] & 0x80:
+                        break
+                data = data[i:i + n]
+            self.device_data = data
             self._install(copy.deepcopy(request.config.p4info))
             self.cookie = request.config.cookie.cookie
             return p4runtime_pb2.SetForwardingPipelineConfigResponse()
@@ -780,3 +796,24 @@ def test_padded_byte_strings_for_old_servers(servicer, tmp_path, capsys):
     set_state(servicer, 0)
     res = p4rt.configure(servicer.address, entries_file(tmp_path, raw, "b.json"), padded_bytes=True)
     assert res.cleared == [0] and state_of(servicer, 0) == {r: {} for r in p4rt.MONITOR_REGISTERS}
+
+
+def test_pipeline_for_pi_builds_that_want_the_legacy_wrapper(tmp_path):
+    fx = P4RuntimeFixture(None)
+    fx.legacy_device_config = True
+    server = grpc.server(futures.ThreadPoolExecutor(max_workers=4))
+    p4runtime_pb2_grpc.add_P4RuntimeServicer_to_server(fx, server)
+    port = server.add_insecure_port("127.0.0.1:0")
+    server.start()
+    try:
+        build = tmp_path / "build"
+        build.mkdir()
+        blob = json.dumps({"program": "civic.p4", "pad": "x" * 300}).encode()    # > 127 bytes: 2-byte varint
+        (build / "civic.json").write_bytes(blob)
+        (build / "civic.p4info.txtpb").write_text(FIXTURE_P4INFO.read_text())
+        res = p4rt.configure(f"127.0.0.1:{port}", entries_file(tmp_path), build)
+        assert res.pipeline_pushed and res.added == 11
+        assert [p.config.p4_device_config[:1] for p in fx.pipelines] == [b"{", b"\x08"]   # raw, then wrapped
+        assert fx.device_data == blob
+    finally:
+        server.stop(grace=None)

@@ -106,6 +106,14 @@ def _open_ns_sockets(netns: str, send_if: str, recv_if: str) -> tuple[socket.soc
     return result["socks"]
 
 
+def _die_with_parent() -> None:
+    """preexec_fn: the switch gets SIGKILL if this process dies without cleaning up (Linux prctl)."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)   # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def _free_link_local() -> tuple[str, str]:
     """Two addresses of an unused 169.254.X.Y/30 (host side, namespace side)."""
     used = _run(["ip", "-4", "-o", "addr", "show"], "ip addr").stdout
@@ -116,6 +124,10 @@ def _free_link_local() -> tuple[str, str]:
             continue
         return f"169.254.{x}.{y + 1}", f"169.254.{x}.{y + 2}"
     raise CivicError("no free 169.254.0.0/16 /30 for the switch control link")
+
+
+def _sigterm(signum, frame):
+    raise SystemExit(128 + signum)
 
 
 def _same_frame(out: bytes, inp: bytes) -> bool:
@@ -155,15 +167,24 @@ class BMv2Switch:
 
     # -- lifecycle
     def __enter__(self) -> "BMv2Switch":
+        self._old_sigterm = None
+        if threading.current_thread() is threading.main_thread():
+            # a plain SIGTERM would skip the finally blocks: turn it into an exception
+            self._old_sigterm = signal.signal(signal.SIGTERM, _sigterm)
         try:
             self.start()
         except BaseException:
-            self.stop()
+            self.__exit__(None, None, None)
             raise
         return self
 
     def __exit__(self, *exc) -> None:
-        self.stop()
+        try:
+            self.stop()
+        finally:
+            if self._old_sigterm is not None:
+                signal.signal(signal.SIGTERM, self._old_sigterm)
+                self._old_sigterm = None
 
     def start(self) -> None:
         path = shutil.which(self.binary)
@@ -213,7 +234,7 @@ class BMv2Switch:
         cmd += ["--", "--grpc-server-addr", self.address]
         self._log = open(self.log_path, "wb")
         self.proc = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                     start_new_session=True)
+                                     start_new_session=True, preexec_fn=_die_with_parent)
         self.conn = self._connect()
         self.tx, self.rx = _open_ns_sockets(ns, f"h{self.ports[0]}", f"h{self.ports[1]}")
         self.pipeline = pipe

@@ -250,3 +250,27 @@ def test_bmv2_matches_model(tmp_path, trained_entries):
         expect.set_verdicts(SwitchModel(entries).run(expect.messages))
         for i in range(len(expect)):
             assert out.frames[i] == expect.frame(i), f"{cap.path} frame {i}"
+
+
+@needs_netns
+def test_sigterm_during_replay_still_cleans_up(stand_in, tmp_path):
+    """A replay killed with SIGTERM removes its namespace and switch like any other failure."""
+    build, pidfile = stand_in
+    script = tmp_path / "run.py"
+    script.write_text(textwrap.dedent(f"""\
+        import sys
+        sys.path.insert(0, {str(ROOT)!r})
+        from civic.bmv2 import BMv2Switch
+        with BMv2Switch({str(build)!r}, startup_timeout=15) as sw:
+            print(sw.netns, sw.host_if, flush=True)
+            sys.stdin.readline()          # wait to be killed
+        """))
+    proc = subprocess.Popen([sys.executable, str(script)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            text=True, env=os.environ.copy())
+    netns, host_if = proc.stdout.readline().split()
+    assert netns in netns_names() and host_if in host_links()
+    proc.terminate()
+    assert proc.wait(timeout=15) == 128 + 15
+    assert netns not in netns_names() and host_if not in host_links()
+    pids = [int(p) for p in pidfile.read_text().split()]
+    assert len(pids) == 1 and not alive(pids[0])

@@ -253,6 +253,7 @@ class BMv2Switch:
                 conn.require_primary()
                 return conn
             except CivicError:
+                conn.close()
                 if time.monotonic() > deadline:
                     raise CivicError(f"{self.binary} did not answer on {self.address} within "
                                      f"{self.startup_timeout:g} s: {self._log_tail()}") from None

@@ -12,11 +12,17 @@ Pieces, in the order `civic configure` uses them:
   class tables' miss class set as default actions.
 * `SwitchConnection` talks to the switch with grpcio and the p4runtime protos:
   arbitration on the StreamChannel, SetForwardingPipelineConfig,
-  Read, Write.
-* `converge` reads what is installed, computes INSERT / MODIFY / DELETE,
-  sends one batched WriteRequest per phase, rolls back a phase the switch
-  rejected, reads back and checks the switch now holds exactly the desired
-  entries.
+  Read, Write. `padded_bytes=True` sends full-width byte strings instead of
+  canonical ones (PI builds from before 2021 accept nothing else).
+* `converge` reads what is installed in the tables it manages, computes
+  INSERT / MODIFY / DELETE (entries nobody asked for are deleted: the entries
+  file owns these tables), validates everything first, sends one batched
+  WriteRequest per phase (make-before-break when the tables have room),
+  rolls back the updates already applied if the switch rejects one, zeroes
+  the registers of monitors whose configuration changed (or reinstalls the
+  pipeline where registers are not writable), reads back and checks the
+  switch now holds exactly the desired entries.
+* `read_state` / `read_plant_state` back `civic configure --read`.
 
 Every user-facing failure is a one-line `CivicError`.
 """

@@ -189,7 +189,7 @@ def test_plumbing_order_missing_and_cleanup(stand_in, tmp_path, made):
 
 
 @needs_netns
-def test_switch_that_dies_is_reported_and_cleaned_up(stand_in, tmp_path, monkeypatch, made):
+def test_stand_in_that_dies_is_reported_and_cleaned_up(stand_in, tmp_path, monkeypatch, made):
     from civic.bmv2 import replay_bmv2
     build, _ = stand_in
     monkeypatch.setenv("STAND_IN_FAIL", "1")
@@ -254,7 +254,7 @@ def test_bmv2_matches_model(tmp_path, trained_entries):
 
 @needs_netns
 def test_sigterm_during_replay_still_cleans_up(stand_in, tmp_path):
-    """A replay killed with SIGTERM removes its namespace and switch like any other failure."""
+    """A replay killed with SIGTERM removes its namespace and (stand-in) switch process like any other failure."""
     build, pidfile = stand_in
     script = tmp_path / "run.py"
     script.write_text(textwrap.dedent(f"""\

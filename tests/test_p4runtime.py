@@ -612,7 +612,7 @@ def test_rejected_write_rolls_back_and_reports_one_line(servicer, tmp_path):
     raw["monitors"][0]["window"] = 21                         # MODIFY config
     cls0 = servicer.by_name(p4rt.mon(0, "classify"))
 
-    def hook(u):   # the switch refuses the class entry with priority BASE-3 (the appended one)
+    def hook(u):   # the fixture refuses the class entry with priority BASE-3 (the appended one)
         te = u.entity.table_entry
         if u.type == p4runtime_pb2.Update.INSERT and te.table_id == cls0 and te.priority == p4rt.PRIORITY_BASE - 3:
             return code_pb2.RESOURCE_EXHAUSTED, "no room in TCAM"
@@ -751,7 +751,7 @@ def test_no_register_access_reinstalls_pipeline_or_refuses(servicer, tmp_path):
     with pytest.raises(CivicError, match="monitor slot 1 changes configuration.*pass --pipeline DIR"):
         p4rt.configure(servicer.address, changed)
     assert all(u.entity.WhichOneof("entity") == "register_entry" for w in servicer.writes for u in w.updates)
-    assert len(servicer.writes) == 1              # only the probe, which the switch refused
+    assert len(servicer.writes) == 1              # only the probe, which the fixture refused
     res = p4rt.configure(servicer.address, changed, build)
     assert res.pipeline_pushed and len(servicer.pipelines) == 2 and res.added == 11
     assert main(["configure", "--switch", servicer.address, "--read"]) == 0

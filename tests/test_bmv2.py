@@ -52,7 +52,7 @@ def host_links() -> set:
 
 
 def entries_json(tmp_path) -> Path:
-    from test_p4runtime import ENTRIES, entries_file
+    from test_p4runtime import entries_file
     return entries_file(tmp_path)
 
 

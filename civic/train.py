@@ -251,12 +251,10 @@ def fit_monitor(mon: Monitor, runs: list[Run], estimator: str, banded: bool) -> 
 
 
 def train(runs: list[Run], config: MonitorConfig, estimator: str, banded: bool) -> Entries:
-    monitors = []
     for mon in config.monitors:
-        if any(r.monitor == mon.name for r in runs):
-            monitors.append(fit_monitor(mon, runs, estimator, banded)[0])
-        else:  # no training data: disabled in effect (never qualifies is not expressible), keep all-error
-            raise CivicError(f"labels have no recording for monitor {mon.name!r}")
+        if not any(r.monitor == mon.name for r in runs):
+            raise CivicError(f"labels have no recording for monitor {mon.name!r} (drop it from the monitors file)")
+    monitors = [fit_monitor(mon, runs, estimator, banded)[0] for mon in config.monitors]
     return Entries(monitors=monitors, udp_port=config.udp_port, plant_prefix=config.plant_prefix,
                    training={"estimator": estimator, "banded": banded,
                              "runs": sorted({r.file for r in runs})})

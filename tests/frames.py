@@ -1,12 +1,15 @@
 """Crafted frames for bad-input and pass-through tests (scapy, independent of civic.wire)."""
 from __future__ import annotations
 
+import numpy as np
+
 from scapy.layers.inet import IP, UDP
 from scapy.layers.inet6 import IPv6
 from scapy.layers.l2 import ARP, Ether
 from scapy.packet import Raw
 
 from civic.scapy_layer import PlantMessage
+from civic.wire import SIGNALS, build_frames, read_pcap, write_pcap
 
 
 def plant(src="10.0.0.1", seq=1, l3=7000, dport=50000, **fields):
@@ -31,3 +34,26 @@ def junk_frames() -> list[bytes]:
         bytes(plant())[:50],  # truncated capture of a plant message
         bytes(base / IP(src="10.0.0.1", dst="10.0.0.2", proto=6) / Raw(b"\x00" * 28)),
     ]
+
+
+def interleave(paths, tmp_path, junk=True, name="mixed.pcap"):
+    """Several recordings as plants 10.0.0.1, .2, ... in one capture, junk frames in between."""
+    frames, times = [], []
+    for k, path in enumerate(paths):
+        cap = read_pcap(path)
+        fields = {s: cap.messages[s] for s in SIGNALS + ("seq",)}
+        f = build_frames(fields, src_ip=f"10.0.0.{k + 1}")
+        frames += [row.tobytes() for row in f]
+        times += list(cap.messages["t"] + 0.01 * k)
+    order = np.argsort(times, kind="stable")
+    frames = [frames[i] for i in order]
+    times = [times[i] for i in order]
+    if junk:
+        extra = junk_frames()
+        for j, fr in enumerate(extra):
+            pos = (j * 37) % len(frames)
+            frames.insert(pos, fr)
+            times.insert(pos, times[pos])
+    out = tmp_path / name
+    write_pcap(out, np.array(times), frames)
+    return out

@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 
 from civic.cli import main
+from civic.entries import load_entries
+from civic.pipeline import SwitchModel
 from civic.wire import read_pcap, write_pcap
 from data import TRAINING
-from frames import junk_frames
+from frames import interleave, junk_frames
 
 
 def civic(capsys, *argv):
@@ -114,3 +116,28 @@ def test_bad_input_one_line_error(capsys, entries_path, tmp_path, case, expect):
     code, out, err = civic(capsys, *args)
     assert code == 2
     assert expect in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_evaluate_several_plants_in_one_capture(capsys, entries_path, tmp_path):
+    """Hidden-set shape: plants interleaved, junk in between, labels per (file, src_ip)."""
+    runs = [("drain_v075_normal_r2.pcap", "drain_t3", "normal"), ("drain_v075_error_r5.pcap", "drain_t3", "error"),
+            ("fill_warning_r1.pcap", "fill_t1", "warning")]
+    interleave([TRAINING / r[0] for r in runs], tmp_path, name="mixed.pcap")
+    (tmp_path / "labels.csv").write_text("file,monitor,class,src_ip\n" + "".join(
+        f"mixed.pcap,{mon},{cls},10.0.0.{k + 1}\n" for k, (_, mon, cls) in enumerate(runs)))
+    assert civic(capsys, "replay", tmp_path / "mixed.pcap", "-o", tmp_path / "out", "--entries", entries_path)[0] == 0
+    code, _, _ = civic(capsys, "evaluate", tmp_path / "out", "--labels", tmp_path / "labels.csv",
+                       "--json", tmp_path / "s.json")
+    assert code == 0
+    report = json.loads((tmp_path / "s.json").read_text())["monitors"]
+    # each plant scored exactly as if it had been recorded alone
+    entries = load_entries(entries_path)
+    names = [m.name for m in entries.monitors]
+    expected = {}
+    for file, mon, cls in runs:
+        _, traces = SwitchModel(entries).traces(read_pcap(TRAINING / file).messages)
+        expected.setdefault(mon, {})[cls] = int(traces[names.index(mon)].evaluated.sum())
+    for mon, per_class in expected.items():
+        for cls, n in per_class.items():
+            assert report[mon]["classes"][cls]["support"] == n > 0
+            assert report[mon]["classes"][cls]["recall"] == 1.0

@@ -7,9 +7,9 @@ import pytest
 from civic.entries import Entries
 from civic.pipeline import SwitchModel
 from civic.pipeline.data_collection import RingState, window_sums
-from civic.wire import SIGNALS, build_frames, monitor_verdict, read_pcap, write_pcap
+from civic.wire import build_frames, monitor_verdict, read_pcap, write_pcap
 from data import DIAGNOSE, TRAINING
-from frames import junk_frames
+from frames import interleave
 
 
 def recordings():
@@ -24,29 +24,6 @@ def test_plain_and_vectorized_models_agree_on_every_recording(request, mode):
         plain = SwitchModel(entries).run_plain(msgs)
         fast = SwitchModel(entries).run(msgs)
         assert np.array_equal(plain, fast), path.name
-
-
-def interleave(paths, tmp_path, junk=True):
-    """Several recordings as different plants in one capture, junk frames in between."""
-    frames, times = [], []
-    for k, path in enumerate(paths):
-        cap = read_pcap(path)
-        fields = {s: cap.messages[s] for s in SIGNALS + ("seq",)}
-        f = build_frames(fields, src_ip=f"10.0.0.{k + 1}")
-        frames += [row.tobytes() for row in f]
-        times += list(cap.messages["t"] + 0.01 * k)
-    order = np.argsort(times, kind="stable")
-    frames = [frames[i] for i in order]
-    times = [times[i] for i in order]
-    if junk:
-        extra = junk_frames()
-        for j, fr in enumerate(extra):
-            pos = (j * 37) % len(frames)
-            frames.insert(pos, fr)
-            times.insert(pos, times[pos])
-    out = tmp_path / "mixed.pcap"
-    write_pcap(out, np.array(times), frames)
-    return out
 
 
 def test_plants_keep_their_own_history(trained_entries, tmp_path):

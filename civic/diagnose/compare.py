@@ -31,7 +31,7 @@ from scipy.signal import lfilter
 
 from civic.errors import CivicError
 from civic.plant.model import OUTSIDE, PlantModel
-from civic.plant.simulate import Recording, initial_state, inputs_matrix, simulate
+from civic.plant.simulate import Recording, compile_model, initial_state, inputs_matrix, measure, simulate
 
 N_BLOCKS = 6          # interleaved train / held-out blocks (even: train, odd: held out)
 
@@ -250,6 +250,11 @@ class SimulationError:
         self.train[: int(0.65 * len(rows))] = True
         self.x0_extra: dict = {}
 
+    def U(self, model: PlantModel) -> np.ndarray:
+        if getattr(self, "_U", None) is None:
+            self._U = inputs_matrix(model, self.inputs, self.n)
+        return self._U
+
     def unmeasured(self, model: PlantModel) -> list[str]:
         sensed = {model.find("sensor", s).tank for s in self.columns}
         return [t for t in model.tank_names if t not in sensed]
@@ -266,6 +271,8 @@ class SimulationError:
 
     def simulate(self, model: PlantModel) -> dict:
         if self.horizon is None:
+            if self.x0_extra:
+                return fast_simulate(model, self.U(model), self.x0(model))
             return simulate(model, self.t, self.inputs, self.x0(model))
         out = {s: np.empty(self.n) for s in self.columns}
         for k in range(0, self.n, self.horizon):
@@ -305,3 +312,54 @@ def _measured_state(model: PlantModel, signals: dict, n_init: int) -> dict:
 def fully_measured(model: PlantModel, rec: Recording) -> bool:
     sensed = {s.tank for s in model.sensors if s.name in rec.signals}
     return all(t in sensed for t in model.tank_names)
+
+
+# ---------------------------------------------------------------------------------------
+# fitting-speed wrapper around civic.plant.simulate: compile once per *structure*
+# (compile_model is keyed on the whole model text, so every new parameter value would
+# recompile), then pass the numeric parameters as a vector to CompiledModel.run.
+# ---------------------------------------------------------------------------------------
+_STRUCT_CACHE: dict = {}
+
+
+def structure_key(model: PlantModel) -> tuple:
+    return (
+        model.dt, model.substeps, tuple(model.input_names),
+        tuple((t.name, None if t.overflow is None else t.overflow.to) for t in model.tanks),
+        tuple((p.name, p.input, p.from_, p.to, round(p.dead_time, 12)) for p in model.pumps),
+        tuple((v.name, v.input, v.tau > 0, v.exponent() != 1.0, round(v.dead_time, 12)) for v in model.valves),
+        tuple((lk.name, lk.from_, lk.to, lk.law, lk.valve, lk.exponent != 0.5) for lk in model.links),
+    )
+
+
+def param_vector(model: PlantModel, names: list[str]) -> np.ndarray:
+    out = np.empty(len(names))
+    for i, path in enumerate(names):
+        kind, name, attr = path.split(".", 2)
+        if kind == "tank" and attr == "overflow.volume":
+            out[i] = model.tank(name).rim_volume()
+        elif kind == "valve" and attr == "characteristic":
+            out[i] = model.find("valve", name).exponent()
+        else:
+            out[i] = float(model.get(path))
+    return out
+
+
+def fast_simulate(model: PlantModel, U: np.ndarray, x0: dict) -> dict:
+    """simulate() for fitting: same results, no recompilation when only numbers change."""
+    key = structure_key(model)
+    cm = _STRUCT_CACHE.get(key)
+    if cm is None:
+        if len(_STRUCT_CACHE) > 128:
+            _STRUCT_CACHE.clear()
+        cm = _STRUCT_CACHE[key] = compile_model(model)
+    names = model.state_names
+    xv = np.array([float(x0.get(k, 0.0)) for k in names])
+    for i, v in enumerate(model.valves):
+        if v.name not in x0:
+            xv[len(model.tanks) + i] = U[0, model.input_names.index(v.input)]
+    X = cm.run(U, xv, param_vector(model, cm.param_names))
+    nt = len(model.tanks)
+    res = measure(model, X[:, :nt])
+    res["volumes"] = X[:, :nt]
+    return res

@@ -131,7 +131,9 @@ def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict]
         res = max(s.resolution, 1e-9)
         top = float(np.max(y))
         at = y >= top - 0.5 * res
-        if at.sum() >= max(min_run, 0.005 * n) and _longest_run(at) >= min_run and np.std(y) > 10 * res:
+        near = (y >= top - 5.5 * res) & ~at          # the 5 resolution steps just below the top
+        # a clipped sensor piles many samples onto one exact value, noise spreads them out
+        if at.sum() >= max(20, 0.005 * n) and at.sum() > 3.0 * (near.sum() / 5.0 + 1.0) and np.std(y) > 10 * res:
             sensors[s.name] = top
             continue  # a stuck sensor is not a level plateau
         ys = uniform_filter1d(y, 5, mode="nearest")
@@ -257,6 +259,16 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
             v = q * tk.area if s.quantity == "level" else q
             loc.max_volume[s.tank] = float(np.max(v))
             loc.max_level[s.tank] = float(np.max(v)) / tk.area
+    if loc.unmeasured and hasattr(engine, "simulate"):
+        # unmeasured tanks: how high the nominal model itself takes them on this recording
+        try:
+            vol = engine.simulate(model)["volumes"]
+            for i, t in enumerate(model.tanks):
+                if t.name in loc.unmeasured:
+                    loc.max_volume[t.name] = float(np.max(vol[:, i]))
+                    loc.max_level[t.name] = loc.max_volume[t.name] / t.area
+        except Exception:  # noqa: BLE001 - bounds only; fall back to capacities
+            pass
     for t in model.tanks:
         if t.name not in loc.max_level:
             cap = t.rim_volume() if np.isfinite(t.rim_volume()) else (t.capacity if np.isfinite(t.capacity) else 10.0 * t.area)

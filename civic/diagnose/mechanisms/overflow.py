@@ -27,8 +27,10 @@ class Overflow(Mechanism):
                             out.append(cls(tk.name, {}, {}, {"volume": round(vol, 4), "to": d}))
             elif tk.name in loc.unmeasured and tk.name in loc.tanks:
                 # unmeasured tank: the rim is a free parameter
-                hi = tk.rim_volume() if tk.overflow is not None else loc.max_volume.get(tk.name, 10.0) * 1.5
-                lo = 0.2 * hi
+                hi = min(tk.rim_volume(), loc.max_volume.get(tk.name, tk.rim_volume()))
+                if not hi < float("inf"):
+                    hi = 10.0 * tk.area
+                lo = 0.3 * hi
                 for d in dests:
                     if d != tk.name:
                         out.append(cls(tk.name, {"volume": 0.8 * hi}, {"volume": (lo, hi)}, {"to": d}))

@@ -130,6 +130,8 @@ class Problem:
         self.unmeasured = engine.unmeasured(model) if isinstance(engine, SimulationError) else []
         self.val = ~engine.train
         self.n_eval = 0
+        # free-run fits are 100x dearer per evaluation: parameters to 1e-4 are plenty there
+        self.xtol = 1e-4 if isinstance(engine, SimulationError) else 1e-6
 
     def build(self, mechs: list[Mechanism], thetas: list, cal_f) -> PlantModel:
         m = self.cal.apply(self.model, cal_f)
@@ -203,7 +205,7 @@ class Problem:
             xs = np.clip(xs, lo + 1e-9 * span, hi - 1e-9 * span)
             try:
                 sol = least_squares(fun, xs, bounds=(lo, hi), x_scale=span, diff_step=1e-4,
-                                    max_nfev=60 * (len(xs) + 1), xtol=1e-6, ftol=1e-8)
+                                    max_nfev=40 * (len(xs) + 1), xtol=self.xtol, ftol=self.xtol)
             except (ValueError, FloatingPointError):
                 continue
             if best is None or sol.cost < best.cost:

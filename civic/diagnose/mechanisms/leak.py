@@ -24,6 +24,9 @@ class Leak(Mechanism):
             for dest in lower_tanks(model) + [OUTSIDE]:
                 if dest == tank:
                     continue
+                if any(lk.law == "orifice" and lk.from_ == tank and lk.to == dest and lk.valve is None
+                       for lk in model.links):
+                    continue  # an orifice already there: a larger one is a `coefficient` finding
                 out.append(cls(tank, {"c": 0.02 * cmax}, {"c": (0.0, cmax)}, {"to": dest}))
         return out
 

@@ -1,0 +1,74 @@
+"""Shared fixtures: concealed-effect recordings made with the closed-loop plant simulator.
+
+Each case runs the plant (with the fault and a few % of calibration spread) under the
+MPC designed on the *nominal* model, as the real plant is run: the controller hides
+the fault from the levels. Cases are generated once per session.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PLANT = ROOT / "configs" / "plant.toml"
+DURATION = 600.0
+
+
+def real_plant(nominal):
+    """The 'real' plant: datasheet coefficients off by a few % (calibration, not a fault)."""
+    m = nominal.copy()
+    m.set("pump.P1.gain", 0.30 * 1.03)
+    m.set("link.pipe23.coeff", 0.12 * 0.98)
+    m.set("link.V2.coeff", 0.30 * 1.02)
+    return m
+
+
+def make_fault(nominal, name):
+    from civic.plant.model import Link, Overflow
+
+    m = real_plant(nominal)
+    if name == "leak_T1":
+        m.links.append(Link("leak", from_="T1", to="T4", coeff=0.012, law="orifice"))
+    elif name == "leak_T2":
+        m.links.append(Link("leak", from_="T2", to="T4", coeff=0.010, law="orifice"))
+    elif name == "offset_L2":
+        m.find("sensor", "L2").offset = 0.4
+    elif name == "deadtime_P1":
+        m.find("pump", "P1").dead_time = 2.0
+    elif name == "head_P1":
+        m.find("pump", "P1").head_coeff = 0.04
+    elif name == "overflow_T1":
+        m.tank("T1").overflow = Overflow(to="T4", volume=9.0)
+    elif name == "saturation_L1":
+        m.find("sensor", "L1").max = 9.0
+    elif name != "clean":
+        raise KeyError(name)
+    return m
+
+
+@pytest.fixture(scope="session")
+def nominal():
+    from civic.plant.model import PlantModel
+
+    return PlantModel.from_toml(PLANT)
+
+
+@pytest.fixture(scope="session")
+def closed_loop_case(nominal):
+    """name -> Recording of a 10 min closed-loop run (cached)."""
+    from civic.plant.control import run_closed_loop
+    from civic.plant.simulate import Recording
+
+    cache = {}
+
+    def get(name, seed=11):
+        key = (name, seed)
+        if key not in cache:
+            plant = make_fault(nominal, name)
+            res = run_closed_loop(plant, DURATION, controller="mpc", seed=seed, noise=True,
+                                  controller_model=nominal)
+            cache[key] = Recording(res.t, res.signals, res.fields, f"closed-loop {name}")
+        return cache[key]
+
+    return get

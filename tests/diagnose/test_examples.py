@@ -1,0 +1,77 @@
+"""The two bundled example cases, end to end through the CLI (report contract included)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from civic.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+CASES = ROOT / "traces" / "diagnose"
+
+
+def _run(tmp_path, case, *extra):
+    out = tmp_path / f"{case}.json"
+    rc = main(["diagnose", str(CASES / case / "case.pcap"), "--json", str(out), "-q", *extra])
+    assert rc == 0
+    return json.loads(out.read_text())
+
+
+def _check_contract(rep):
+    assert isinstance(rep["mismatch"], bool)
+    assert isinstance(rep["findings"], list)
+    for f in rep["findings"]:
+        assert set(f) >= {"mechanism", "component", "parameters", "intervals", "evidence"}
+        assert isinstance(f["parameters"], dict) and isinstance(f["evidence"], str)
+        for a, b in f["intervals"]:
+            assert 0.0 <= a < b <= 600.5
+    for when in ("before", "after"):
+        rmse = rep["fit"][when]["rmse"]
+        assert set(rmse) == {"L1", "L2", "L3", "L4"}
+        assert all(isinstance(v, float) for v in rmse.values())
+
+
+def test_leak_t3_found(tmp_path):
+    rep = _run(tmp_path, "example_leak_t3", "--plot", str(tmp_path / "fit.png"),
+               "--write-model", str(tmp_path / "improved.toml"))
+    _check_contract(rep)
+    truth = json.loads((CASES / "example_leak_t3" / "truth.json").read_text())
+    assert rep["mismatch"] is True
+    top = rep["findings"][0]
+    assert (top["mechanism"], top["component"]) == (truth["mechanism"], truth["component"])
+    assert top["parameters"]["to"] == "T4"
+    assert abs(top["parameters"]["c"] - truth["parameters"]["c"]) < 0.3 * truth["parameters"]["c"]
+    # the leak is active over (nearly) the whole record
+    covered = sum(b - a for a, b in top["intervals"])
+    assert covered > 300
+    # improved model: far better open-loop fit of T3 than the nominal one
+    assert rep["fit"]["after"]["rmse"]["L3"] < 0.2 * rep["fit"]["before"]["rmse"]["L3"]
+    assert (tmp_path / "fit.png").stat().st_size > 10_000
+    from civic.plant.model import PlantModel
+
+    improved = PlantModel.from_toml(tmp_path / "improved.toml")
+    leak = [lk for lk in improved.links if lk.name.startswith("leak")]
+    assert len(leak) == 1 and leak[0].from_ == "T3"
+
+
+def test_none_no_mismatch(tmp_path):
+    rep = _run(tmp_path, "example_none")
+    _check_contract(rep)
+    assert rep["mismatch"] is False
+    assert rep["findings"] == []
+
+
+def test_plant_option_and_errors(tmp_path, capsys):
+    rep = _run(tmp_path, "example_none", "--plant", "10.0.0.1")
+    assert rep["mismatch"] is False
+    assert main(["diagnose", str(CASES / "example_none" / "case.pcap"), "--plant", "10.0.0.9"]) == 2
+    assert "no plant messages from 10.0.0.9" in capsys.readouterr().err
+    assert main(["diagnose", str(tmp_path / "missing.pcap")]) == 2
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t_s,foo\n0,1\n1,2\n")
+    assert main(["diagnose", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.count("\n") == 2
+    assert main(["diagnose", str(CASES / "example_none" / "case.pcap"), "--json", "/nonexistent/r.json"]) == 2

@@ -325,6 +325,9 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
                                    "dbic": res.val_bic - base.val_bic,
                                    "val_gain": 1 - res.val_sse / max(base.val_sse, 1e-300),
                                    "parameters": res.mechanisms[-1].report_parameters()})
+        # physically negligible effects are not findings, however significant statistically
+        results = [(c, r) for c, r in results
+                   if not r.mechanisms[-1].negligible(r.mechanisms[-1].values(), model)]
         if not results:
             break
         cand, res = min(results, key=lambda cr: cr[1].val_bic)

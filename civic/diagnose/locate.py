@@ -26,7 +26,7 @@ from civic.plant.simulate import Recording
 from .mechanisms.base import tanks_touching
 
 BLOCK = 6          # rows averaged per block in the lack-of-fit statistic
-FLAG_RATIO = 3.0   # block-mean chi-square / expected above which a column is flagged
+FLAG_RATIO = 2.0   # block-mean chi-square / expected above which a column is flagged
 FLAG_Z = 6.0       # |mean| in standard errors above which a column is flagged
 
 

@@ -40,6 +40,8 @@ def make_fault(nominal, name):
         m.find("pump", "P1").head_coeff = 0.04
     elif name == "overflow_T1":
         m.tank("T1").overflow = Overflow(to="T4", volume=9.0)
+    elif name == "valve_V1":
+        m.find("valve", "V1").characteristic = 1.5
     elif name == "saturation_L1":
         m.find("sensor", "L1").max = 9.0
     elif name != "clean":

@@ -19,6 +19,7 @@ CASES = [
     ("head_P1", "pump_head", "P1", "head_coeff", 0.04, 0.3),
     ("overflow_T1", "overflow", "T1", "volume", 9.0, 0.05),
     ("saturation_L1", "sensor_saturation", "L1", "max", 9.0, 0.01),
+    ("valve_V1", "valve_characteristic", "V1", "n", 1.5, 0.15),
 ]
 
 

@@ -71,6 +71,11 @@ class Mechanism:
     def candidates(cls, model: PlantModel, loc) -> list["Mechanism"]:
         return []
 
+    def negligible(self, p: dict, model: PlantModel) -> bool:
+        """True when the fitted effect is too small to matter physically (not a finding,
+        however significant statistically): e.g. an offset below the sensor noise."""
+        return False
+
     # ---- reporting ------------------------------------------------------------------------
     @property
     def label(self) -> str:

@@ -41,5 +41,9 @@ class Coefficient(Mechanism):
                                {"path": path, "nominal": nominal}))
         return out
 
+    def negligible(self, p, model):
+        from civic.diagnose.fit import CAL_SPREAD
+        return abs(p["factor"] - 1.0) <= 1.5 * CAL_SPREAD   # within calibration territory
+
     def describe(self, p):
         return f"{p['path']} = {p['value']:.4g} ({(p['factor'] - 1) * 100:+.0f} % vs nominal)"

@@ -24,5 +24,9 @@ class DeadTime(Mechanism):
                 out.append(cls(v.name, {"dead_time": v.dead_time + 2 * model.dt}, {"dead_time": (0.0, hi)}))
         return out
 
+    def negligible(self, p, model):
+        kind = "pump" if any(x.name == self.component for x in model.pumps) else "valve"
+        return abs(p["dead_time"] - model.find(kind, self.component).dead_time) < 0.5 * model.dt
+
     def describe(self, p):
         return f"{self.component} acts {p['dead_time']:.3g} s after its command"

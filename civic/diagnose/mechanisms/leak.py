@@ -30,5 +30,9 @@ class Leak(Mechanism):
                 out.append(cls(tank, {"c": 0.02 * cmax}, {"c": (0.0, cmax)}, {"to": dest}))
         return out
 
+    def negligible(self, p, model):
+        ref = max([lk.coeff for lk in model.links] + [0.0])
+        return p["c"] < 0.01 * ref
+
     def describe(self, p):
         return f"q = {p['c']:.4g}*sqrt(h) from {self.component} to {p['to']}"

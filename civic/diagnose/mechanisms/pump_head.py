@@ -7,6 +7,15 @@ from .base import Mechanism
 class PumpHead(Mechanism):
     name = "pump_head"
 
+    @property
+    def n_params(self):
+        return len(self.params)
+
+    def values(self, theta=None):
+        v = super().values(theta)
+        v.pop("hmax", None)
+        return v
+
     def edit(self, model, p):
         model.find("pump", self.component).head_coeff = max(0.0, float(p["head_coeff"]))
 
@@ -16,8 +25,12 @@ class PumpHead(Mechanism):
         for p in model.pumps:
             if p.to != "outside" and {p.from_, p.to} & set(loc.tanks):
                 hmax = max(loc.max_level.get(p.to, 1.0), 1e-3)
-                out.append(cls(p.name, {"head_coeff": 0.05 / hmax}, {"head_coeff": (0.0, 0.9 / hmax)}))
+                out.append(cls(p.name, {"head_coeff": 0.05 / hmax}, {"head_coeff": (0.0, 0.9 / hmax)},
+                               {"hmax": round(hmax, 6)}))
         return out
+
+    def negligible(self, p, model):
+        return p["head_coeff"] * self.fixed.get("hmax", 1.0) < 0.02   # < 2 % flow change
 
     def describe(self, p):
         return f"{self.component} flow *= 1 - {p['head_coeff']:.3g}*h"

@@ -37,5 +37,9 @@ class SensorOffset(Mechanism):
                                    {"base": s.offset}))
         return out
 
+    def negligible(self, p, model):
+        s = model.find("sensor", self.component)
+        return abs(p["offset"]) < max(2.0 * s.noise_sigma, 2.0 * s.resolution, 1e-3 * self.fixed.get("span", 1.0))
+
     def describe(self, p):
         return f"{self.component} reads {p['offset']:+.4g} off"

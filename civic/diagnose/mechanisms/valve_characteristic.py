@@ -20,5 +20,8 @@ class ValveCharacteristic(Mechanism):
                 out.append(cls(v.name, {"n": 1.2}, {"n": (0.25, 4.0)}))
         return out
 
+    def negligible(self, p, model):
+        return abs(p["n"] - model.find("valve", self.component).exponent()) < 0.05
+
     def describe(self, p):
         return f"{self.component} passes opening**{p['n']:.3g} (linear = 1)"

@@ -180,6 +180,7 @@ def _regimes(model: PlantModel, rec: Recording, R: np.ndarray, sigma: np.ndarray
             feats[f"{s.name} above"] = (window_mean(np.asarray(rec.signals[s.name], float)), "level")
     for p in model.pumps:
         u = np.asarray(rec.signals[p.input], float)
+        feats[f"{p.name} command ({p.input}) above"] = (window_mean(u), "level")
         step = np.abs(np.diff(u, prepend=u[0]))
         lookback = max(1, int(round(3.0 / dt)))
         recent = uniform_filter1d(step, 2 * lookback + 1, origin=-lookback // 2, mode="nearest") * (2 * lookback + 1)

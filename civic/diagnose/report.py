@@ -49,9 +49,38 @@ def short_horizon_rmse(model: PlantModel, rec: Recording, horizon_s: float = SHO
     return {k: round(v, 6) for k, v in eng.rmse(model).items()}
 
 
-def _finding_intervals(diag: Diagnosis, prev, res) -> list[list[float]]:
-    """Where the finding changes the fit: rows whose residual it reduces well beyond noise."""
+def _mask_intervals(mask: np.ndarray, t: np.ndarray, dt: float, gap: float) -> list[list[float]]:
+    out, i, n = [], 0, len(mask)
+    while i < n:
+        if mask[i]:
+            j = i
+            while j + 1 < n and mask[j + 1]:
+                j += 1
+            out.append([float(t[i]), float(t[j] + dt)])
+            i = j + 1
+        else:
+            i += 1
+    return merge(out, gap=gap)
+
+
+def _finding_intervals(diag: Diagnosis, prev, res, mech=None) -> list[list[float]]:
+    """Where the finding acts: for a spill or a clipped sensor, where it is physically active
+    (tank at its rim in the fitted model's simulation, sensor at its clip value); otherwise
+    the rows whose residual it reduces well beyond noise."""
     eng = diag.engine
+    model = diag.model_nominal
+    t = np.arange(len(diag.engine.rec.t)) * model.dt
+    gap = 0.01 * float(t[-1] - t[0] + model.dt)
+    fitted = res.mechanisms[-1]
+    p = fitted.values()
+    if fitted.name == "sensor_saturation":
+        y = np.asarray(eng.rec.signals[fitted.component], float)
+        return _mask_intervals(y >= p["max"] - 1e-9, t, model.dt, gap)
+    if fitted.name == "overflow" and isinstance(eng, SimulationError):
+        eng.x0_extra = dict(res.x0_extra)
+        vol = eng.simulate(res.model)["volumes"]
+        i = model.tank_names.index(fitted.component)
+        return _mask_intervals(vol[:, i] >= p["volume"] * (1 - 1e-6), t, model.dt, gap)
     prob_sigma = diag.sigma
     Rp = _resid(diag, prev) / prob_sigma
     Ra = _resid(diag, res) / prob_sigma
@@ -103,7 +132,7 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         params = fitted.report_parameters()
         for k in ("base",):
             params.pop(k, None)
-        intervals = _finding_intervals(diag, f["prev"], f["fit"])
+        intervals = _finding_intervals(diag, f["prev"], f["fit"], mech)
         ev = [f"held-out {eng.kind} error: BIC {f['dbic']:+.1f}, weighted SSE {-100 * f['gain']:+.0f} % "
               f"vs the calibrated model without it"]
         if isinstance(eng, EquationError):
@@ -118,7 +147,12 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
                 ev.append("concealed in closed loop: levels track their setpoints, but the actuators "
                           "work against a loss the model does not have (mass balance of "
                           f"{mech.component} with the recorded commands)")
-        ev += [r for r in diag.loc.regimes if r.split(":")[0] in (mech.component, params.get("to"))]
+        if isinstance(eng, SimulationError):
+            ev += diag.loc.regimes
+            if intervals:
+                ev.append("active " + ", ".join(f"{a:g}-{b:g} s" for a, b in intervals[:4]))
+        else:
+            ev += [r for r in diag.loc.regimes if r.split(":")[0] in (mech.component, params.get("to"))]
         ev.append(fitted.describe(fitted.values()) if fitted.params or fitted.fixed else "")
         findings.append({
             "mechanism": mech.name,
@@ -168,6 +202,7 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
             "scores": {c: {k: round(v, 3) for k, v in s.items()} for c, s in loc.scores.items()},
             "intervals": {c: v for c, v in loc.intervals.items()},
             "regimes": loc.regimes,
+            "limits_reached": _limits_reached(diag, rec),
         },
         "candidates": [{"candidate": t["candidate"], "heldout_dbic": round(t["dbic"], 2),
                         "heldout_sse_reduction": round(t["val_gain"], 4)}
@@ -175,6 +210,22 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
     }
     report["_sims"] = (sim_before, sim_after)
     return report
+
+
+def _limits_reached(diag: Diagnosis, rec: Recording) -> dict:
+    """Sensors sitting at a clip value the model already has (e.g. y_V at 10 V): intervals."""
+    out = {}
+    model = diag.model_nominal
+    t = np.arange(len(rec.t)) * model.dt
+    for s in model.sensors:
+        if s.name not in rec.signals or s.max is None:
+            continue
+        y = np.asarray(rec.signals[s.name], float)
+        at = y >= s.max - max(s.resolution, 1e-9) * 0.5
+        if at.sum() >= 2:
+            out[s.name] = {"max": s.max, "samples": int(at.sum()),
+                           "intervals": _mask_intervals(at, t, model.dt, 0.01 * float(t[-1] + model.dt))}
+    return out
 
 
 def write_json(report: dict, path: str | Path) -> None:

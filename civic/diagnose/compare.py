@@ -96,6 +96,9 @@ class EquationError:
         self.row_times = np.stack([t[self.k0], t[self.k1]], axis=1)
         self.train = holdout_mask(self.nwin)
         self._cache = {}
+        gaps = getattr(rec, "gaps", None)
+        # samples filled in for lost messages: windows touching them carry no information
+        self.gap_rows = gaps if gaps is not None and gaps.any() else None
 
     # ---- pieces that depend on a few parameters only (cached) -----------------------
     def _pump_avg(self, inp: str, delay: float) -> np.ndarray:
@@ -201,6 +204,8 @@ class EquationError:
 
     def residuals(self, model: PlantModel) -> np.ndarray:
         V, cens = self.volumes(model)
+        if self.gap_rows is not None:
+            cens = cens | self.gap_rows[:, None]
         F, _ = self.flows(model, V)
         cF = np.concatenate((np.zeros((1, F.shape[1])), np.cumsum(F, axis=0)))
         R = (V[self.k1] - V[self.k0]) - (cF[self.k1] - cF[self.k0])
@@ -212,6 +217,9 @@ class EquationError:
             if cw.any():
                 tidx = {t.name: i for i, t in enumerate(model.tanks)}
                 hide = cw.copy()
+                if self.gap_rows is not None:
+                    cg = np.concatenate(([0], np.cumsum(self.gap_rows)))
+                    hide |= ((cg[self.k1 + 1] - cg[self.k0]) > 0)[:, None]
                 for lk in model.links:
                     if lk.to != OUTSIDE:
                         a, b = tidx[lk.from_], tidx[lk.to]
@@ -286,7 +294,11 @@ class SimulationError:
     def residuals(self, model: PlantModel) -> np.ndarray:
         sim = self.simulate(model)
         P = np.stack([sim[s] for s in self.columns], axis=1)
-        return (P - self.Y)[self.skip:]
+        R = P - self.Y
+        gaps = getattr(self.rec, "gaps", None)
+        if gaps is not None and gaps.any():
+            R[gaps] = 0.0          # lost samples: nothing to compare
+        return R[self.skip:]
 
     def rmse(self, model: PlantModel, rows=None) -> dict:
         R = self.residuals(model)

@@ -75,7 +75,30 @@ def check(rec: Recording, model: PlantModel) -> Recording:
     for k, v in rec.signals.items():
         if not np.all(np.isfinite(v)):
             raise CivicError(f"{rec.path}: signal {k} has NaN/infinite values")
-    return rec
+    return regularise(rec, model.dt)
+
+
+def regularise(rec: Recording, dt: float) -> Recording:
+    """Put the samples on the uniform grid k*dt; missing samples (lost messages) are filled by
+    holding the last value and flagged in `rec.gaps` (the comparisons ignore them)."""
+    k = np.rint(np.asarray(rec.t, float) / dt).astype(np.int64)
+    k -= k[0]
+    n = int(k[-1]) + 1
+    if n == len(k) and np.all(np.diff(k) == 1):
+        rec.gaps = np.zeros(n, bool)
+        return rec
+    keep = np.concatenate(([True], np.diff(k) > 0))      # duplicates: first one wins
+    k = k[keep]
+    if n > 4 * len(k):
+        raise CivicError(f"{rec.path}: more than 3/4 of the samples are missing")
+    src = np.searchsorted(k, np.arange(n), side="right") - 1  # last received sample
+    gaps = np.ones(n, bool)
+    gaps[k] = False
+    signals = {name: np.asarray(v)[keep][src] for name, v in rec.signals.items()}
+    fields = {name: np.asarray(v)[keep][src] for name, v in (rec.fields or {}).items()}
+    out = Recording(np.arange(n) * dt, signals, fields, rec.path)
+    out.gaps = gaps
+    return out
 
 
 def measured(rec: Recording, model: PlantModel) -> list[str]:

@@ -75,3 +75,23 @@ def test_plant_option_and_errors(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "Traceback" not in err and err.count("\n") == 2
     assert main(["diagnose", str(CASES / "example_none" / "case.pcap"), "--json", "/nonexistent/r.json"]) == 2
+
+
+def test_lost_messages_are_tolerated(tmp_path):
+    """Messages lost on the wire leave holes in the time axis: filled, flagged and ignored."""
+    import numpy as np
+
+    from civic.wire import read_pcap, write_pcap
+
+    cap = read_pcap(CASES / "example_leak_t3" / "case.pcap")
+    keep = np.ones(len(cap.messages), bool)
+    keep[1000:1030] = keep[3000:3003] = keep[5000] = False
+    idx = np.flatnonzero(keep)
+    gappy = tmp_path / "gappy.pcap"
+    write_pcap(gappy, cap.messages["t"][idx], [cap.frame(i) for i in idx])
+    out = tmp_path / "gappy.json"
+    assert main(["diagnose", str(gappy), "--json", str(out), "-q"]) == 0
+    rep = json.loads(out.read_text())
+    top = rep["findings"][0]
+    assert (top["mechanism"], top["component"]) == ("leak", "T3")
+    assert abs(top["parameters"]["c"] - 0.012) < 0.0036

@@ -41,8 +41,41 @@ def load(path: str | Path, model: PlantModel, plant: str | None = None) -> Recor
             raise CivicError("--plant applies to pcap recordings only")
         if not path.endswith(".csv"):
             raise CivicError(f"{path}: neither a pcap nor a .csv recording")
-        rec = load_recording(path, model)
+        rec = _load_csv(path, model)
     return check(rec, model)
+
+
+TIME_COLUMNS = ("t_s", "t", "time", "time_s")
+
+
+def _load_csv(path: str, model: PlantModel) -> Recording:
+    """CSV: `t_s` (or t, time, time_s) + model signal names (physical units) or wire fields."""
+    try:
+        with open(path) as fh:
+            header = [h.strip() for h in fh.readline().split(",")]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CivicError(f"cannot read {path}: {exc}") from None
+    if "t_s" in header or not any(h.lower() in TIME_COLUMNS for h in header):
+        return load_recording(path, model)
+    tcol = next(h for h in header if h.lower() in TIME_COLUMNS)
+    try:
+        raw = np.atleast_2d(np.loadtxt(path, delimiter=",", skiprows=1, dtype=float))
+    except ValueError as exc:
+        raise CivicError(f"{path}: bad CSV: {exc}") from None
+    if raw.shape[1] != len(header):
+        raise CivicError(f"{path}: rows do not match the header's {len(header)} columns")
+    cols = {h: raw[:, i] for i, h in enumerate(header)}
+    t = cols.pop(tcol)
+    t = t - t[0]
+    names = set(model.input_names) | set(model.signal_names)
+    if set(cols) & names:
+        return Recording(t, {c: v for c, v in cols.items() if c in names}, {}, path)
+    wires = set(model.wire_fields)
+    if set(cols) & wires:
+        f = {c: v for c, v in cols.items() if c in wires}
+        return Recording(t, from_wire(model, f), {k: v.astype(np.int64) for k, v in f.items()}, path)
+    raise CivicError(f"{path}: no column matches the model's signals "
+                     f"({', '.join(model.input_names + model.signal_names)})")
 
 
 def _load_pcap_plant(path: str, model: PlantModel, plant: str) -> Recording:

@@ -72,7 +72,8 @@ class EquationError:
         n = len(rec.t)
         self.n = n
         self.dt = float(model.dt)
-        self.W = max(2, int(round(window_s / self.dt)))
+        # short recordings (a 18 s drain test): shorter windows, at least 24 of them
+        self.W = max(5, min(int(round(window_s / self.dt)), (n - 1) // 24))
         self.nwin = (n - 1) // self.W
         if self.nwin < 6:
             raise CivicError(f"{rec.path}: too short for the equation error ({n} samples)")

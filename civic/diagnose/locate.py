@@ -225,8 +225,12 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
     loc = Localisation(kind=engine.kind, columns=cols)
     scores = column_scores(R, sigma)
     loc.scores = {c: s for c, s in zip(cols, scores)}
+    # few blocks (a short test run): the block statistic is noisier, the bar higher
+    from scipy.stats import chi2
+    nb = max(1, R.shape[0] // BLOCK)
+    bar = FLAG_RATIO * max(1.0, (chi2.ppf(0.999, nb) / nb) / (chi2.ppf(0.999, 20) / 20))
     for c, s in loc.scores.items():
-        if s["ratio"] > FLAG_RATIO or abs(s["z"]) > FLAG_Z:
+        if s["ratio"] > bar or abs(s["z"]) > FLAG_Z:
             loc.flagged.append(c)
     loc.flagged.sort(key=lambda c: -loc.scores[c]["ratio"])
     for j, c in enumerate(cols):

@@ -95,3 +95,18 @@ def test_lost_messages_are_tolerated(tmp_path):
     top = rep["findings"][0]
     assert (top["mechanism"], top["component"]) == ("leak", "T3")
     assert abs(top["parameters"]["c"] - 0.012) < 0.0036
+
+
+@pytest.mark.parametrize("run,closure", [("drain_v075_error_r1", 0.55), ("drain_v075_warning_r1", 0.30),
+                                         ("drain_v075_normal_r1", 0.0)])
+def test_short_drain_tests(tmp_path, run, closure):
+    """18 s drain tests (traces/training): a half-closed VM1 is a V2 coefficient finding."""
+    out = tmp_path / "r.json"
+    assert main(["diagnose", str(ROOT / "traces" / "training" / f"{run}.pcap"), "--json", str(out), "-q"]) == 0
+    rep = json.loads(out.read_text())
+    if closure == 0.0:
+        assert rep["mismatch"] is False
+        return
+    top = rep["findings"][0]
+    assert (top["mechanism"], top["component"]) == ("coefficient", "V2")
+    assert abs(top["parameters"]["factor"] - (1 - closure)) < 0.05

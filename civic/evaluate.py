@@ -138,6 +138,14 @@ def plot_monitor(res: MonitorResult, path: Path, entries_monitor=None) -> None:
     for label, cls, t, s, _lvl, code in res.runs:
         ev = code != 0
         ax.plot(t[ev], s[ev], ".", ms=2, color=colors[cls], alpha=0.6)
+    if entries_monitor is not None and len(np.unique(entries_monitor.classes[:, 2])) == 1:
+        # a 1-D table: its slope ranges are horizontal bands over time
+        lo_y, hi_y = ax.get_ylim()
+        for lo, hi, _, _, c in entries_monitor.classes:
+            y0, y1 = max(lo * entries_monitor.slope_scale, lo_y), min(hi * entries_monitor.slope_scale, hi_y)
+            if y1 > y0:
+                ax.axhspan(y0, y1, color=colors[int(c)], alpha=0.15, lw=0)
+        ax.set_ylim(lo_y, hi_y)
     ax.set(title=f"{res.name}: window slope of evaluated messages", xlabel="time in recording (s)",
            ylabel="slope (mL/s)")
     ax.legend(handles=[plt.Line2D([], [], marker="o", ls="", color=c, label=NAMES[k]) for k, c in colors.items()],

@@ -39,11 +39,10 @@
 #include "include/parser.p4"
 #include "include/control/forwarding.p4"
 #include "include/control/plant_lookup.p4"
-#include "include/control/monitor_config.p4"
+#include "include/control/signal_select.p4"
 #include "include/control/const_mul.p4"
-#include "include/control/data_collection.p4"
 #include "include/control/slope.p4"
-#include "include/control/classification.p4"
+#include "include/control/monitor.p4"
 #include "include/control/verdict.p4"
 
 control CivicIngress(inout ig_headers_t hdr,
@@ -57,43 +56,27 @@ control CivicIngress(inout ig_headers_t hdr,
     PlantLookup() plant_lookup;
     SeqGap() seq_gap;
 
-    @name("mon0") MonitorConfig() mon0_config;
-    @name("mon0") Precondition() mon0_precondition;
-    @name("mon0") DataCollection(MON0_RING_LEN, MON0_R_MUL) mon0_data;
-    @name("mon0") Slope(MON0_LSQ == 1, MON0_WINDOW % 2 == 0, MON0_W1_MUL) mon0_slope;
-    @name("mon0") Classification(MON0_WINDOW) mon0_classification;
-
-    @name("mon1") MonitorConfig() mon1_config;
-    @name("mon1") Precondition() mon1_precondition;
-    @name("mon1") DataCollection(MON1_RING_LEN, MON1_R_MUL) mon1_data;
-    @name("mon1") Slope(MON1_LSQ == 1, MON1_WINDOW % 2 == 0, MON1_W1_MUL) mon1_slope;
-    @name("mon1") Classification(MON1_WINDOW) mon1_classification;
+    // Monitor slot k is the instance monK of Monitor: its tables, actions
+    // and registers are CivicIngress.monK.* (see monitor.p4). Arguments:
+    // W, R, estimator, bias-in-product (W even), R and W - 1 as
+    // shift-and-add terms (include/config.p4).
+    Monitor(MON0_WINDOW, MON0_RING_LEN, MON0_LSQ == 1, MON0_WINDOW % 2 == 0,
+            MON0_R_MUL, MON0_W1_MUL) mon0;
+    Monitor(MON1_WINDOW, MON1_RING_LEN, MON1_LSQ == 1, MON1_WINDOW % 2 == 0,
+            MON1_R_MUL, MON1_W1_MUL) mon1;
 
     apply {
         forwarding.apply(ig_intr_md.ingress_port, ig_tm_md, ig_dprsr_md);
 
         if (hdr.plant.isValid()) {
             plant_lookup.apply(hdr, meta);
-            mon0_config.apply(hdr.plant, meta.mon0);
-            mon0_precondition.apply(hdr.plant, meta.mon0);
-            mon1_config.apply(hdr.plant, meta.mon1);
-            mon1_precondition.apply(hdr.plant, meta.mon1);
-
             if (meta.monitored == 1 && meta.in_prefix == 1) {
+                meta.plant = 1;
                 hdr.bridge.plant = 1;
                 seq_gap.apply(hdr, meta);
-
-                if (meta.mon0.enabled == 1) {
-                    mon0_data.apply(meta.slot, meta.gap, meta.mon0);
-                    mon0_slope.apply(meta.mon0);
-                    mon0_classification.apply(meta.mon0, hdr.bridge.cls0);
-                }
-                if (meta.mon1.enabled == 1) {
-                    mon1_data.apply(meta.slot, meta.gap, meta.mon1);
-                    mon1_slope.apply(meta.mon1);
-                    mon1_classification.apply(meta.mon1, hdr.bridge.cls1);
-                }
             }
+            mon0.apply(hdr.plant, meta.plant, meta.slot, meta.gap, meta.mon0, hdr.bridge.cls0);
+            mon1.apply(hdr.plant, meta.plant, meta.slot, meta.gap, meta.mon1, hdr.bridge.cls1);
         }
     }
 }

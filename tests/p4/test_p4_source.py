@@ -21,7 +21,6 @@ P4SRC = ROOT / "p4src"
 V1 = P4SRC / "v1model"
 TNA = P4SRC / "tna"
 MONITOR_SLOTS_V1 = 4
-MONITOR_CONTROLS = ("MonitorConfig", "Precondition", "DataCollection", "Slope", "Classification")
 
 
 def strip_comments(text: str) -> str:
@@ -74,26 +73,134 @@ def test_braces_and_parens_balance(arch):
             assert text.count(a) == text.count(b), f"unbalanced {a}{b} in {f.relative_to(ROOT)}"
 
 
+def control_bodies(src: str) -> dict[str, str]:
+    """control name -> body text (between the braces after the parameter lists)."""
+    out = {}
+    for m in re.finditer(r"\bcontrol\s+(\w+)\s*\(", src):
+        i = src.index("{", m.end())
+        depth, j = 0, i
+        while True:
+            depth += {"{": 1, "}": -1}.get(src[j], 0)
+            j += 1
+            if depth == 0:
+                break
+        out[m.group(1)] = src[i + 1:j - 1]
+    return out
+
+
+def top_level_decls(body: str) -> str:
+    """The part of a control body outside nested braces (its declarations), apply block excluded."""
+    out, depth = [], 0
+    for ch in body:
+        if ch == "{":
+            depth += 1
+        if depth == 0:
+            out.append(ch)
+        if ch == "}":
+            depth -= 1
+    text = "".join(out)
+    return text[:text.rindex("apply")] if "apply" in text else text
+
+
+CP_OBJECT = re.compile(r"(?:@name\(\s*\"([^\"]+)\"\s*\)\s*)?"
+                       r"(?:table\s+(\w+)|action\s+(\w+)\s*\(|[Rr]egister<[^;=]*?>\s*\([^;]*?\)\s*(\w+)\s*;)")
+INSTANCE = re.compile(r"(?:@name\(\s*\"([^\"]+)\"\s*\)\s*)?\b([A-Z]\w*)\s*\(([^;{}]*)\)\s+(\w+)\s*;")
+
+
+def derived_names(src: str, top: str = "CivicIngress") -> dict[str, str]:
+    """P4Info names p4c derives for the tables, actions and registers reachable from `top`.
+
+    The rules of p4c 1.2.x (frontends/p4/inlining.cpp ComputeNewNames, hierarchicalNames.cpp,
+    IDeclaration::controlPlaneName): an object of an inlined control instance is prefixed with
+    the instance's external name (its @name, else its declared name), recursively; a name
+    starting with '.' is absolute and stays as it is; the top-level control's name is prefixed
+    last; the P4Info drops a leading dot. Returns name -> kind ("table", "action", "register").
+    """
+    bodies = control_bodies(src)
+    out: dict[str, str] = {}
+
+    def walk(ctl: str, prefix: str) -> None:
+        decls = top_level_decls(bodies[ctl])
+        for m in CP_OBJECT.finditer(decls):
+            anno, table, action, register = m.groups()
+            local = table or action or register
+            kind = "table" if table else "action" if action else "register"
+            name = anno or local
+            full = name[1:] if name.startswith(".") else f"{prefix}.{name}"
+            assert full not in out, f"two objects named {full}"
+            out[full] = kind
+        for m in INSTANCE.finditer(decls):
+            anno, typ, _, inst = m.groups()
+            if typ in bodies:
+                walk(typ, f"{prefix}.{anno or inst}")
+
+    walk(top, top)
+    return out
+
+
+@pytest.mark.parametrize("arch", [V1, TNA], ids=["v1model", "tna"])
+def test_no_duplicate_name_annotations(arch):
+    """p4c rejects two objects of one control with the same @name when it writes a P4Info
+    (frontends/p4/duplicateHierarchicalNameCheck.cpp: "conflicting control plane name"), and an
+    absolute @name in a control instantiated more than once names two objects the same."""
+    src = source(arch / "civic.p4")
+    bodies = control_bodies(src)
+    uses: dict[str, int] = {}
+    for body in bodies.values():
+        for m in INSTANCE.finditer(top_level_decls(body)):
+            uses[m.group(2)] = uses.get(m.group(2), 0) + 1
+    for ctl, body in bodies.items():
+        decls = top_level_decls(body)
+        names = re.findall(r'@name\(\s*"([^"]+)"\s*\)\s*(?!\s*(?:bit|int)\b)', decls)
+        key_names = re.findall(r':\s*\w+\s+@name\("([^"]+)"\)', decls)
+        names = [n for n in names if n not in key_names]
+        assert len(names) == len(set(names)), f"{ctl}: duplicate @name {sorted(names)}"
+        if uses.get(ctl, 0) > 1:
+            assert not any(n.startswith(".") for n in names), f"{ctl} is instantiated twice but has absolute @names"
+
+
 def test_v1model_control_plane_names():
     """The names of civic/p4runtime.py, as p4c will derive them (see p4src/README.md)."""
     src = source(V1 / "civic.p4")
-    # objects of CivicIngress proper: absolute @name, the P4Info drops the leading dot
-    for full in (p4runtime.TABLE_FORWARD, p4runtime.TABLE_MONITORED_PORT, p4runtime.TABLE_PLANT_PREFIX,
-                 p4runtime.ACTION_SET_EGRESS, p4runtime.ACTION_SET_MONITORED, p4runtime.ACTION_SET_PLANT,
-                 p4runtime.REGISTER_LAST_SEQ, "CivicIngress.drop"):
-        assert f'@name(".{full}")' in src, full
     assert re.search(r"control\s+CivicIngress\s*\(", src)
     assert re.search(r"V1Switch\s*\([^;]*CivicIngress\s*\(\)", src, re.S)
-    # monitor slot k: every monitor control instantiated once with @name("monK")
+    # monitor slot k is one instance `Monitor() monK;` of CivicIngress
     for k in range(MONITOR_SLOTS_V1):
-        for ctl in MONITOR_CONTROLS:
-            assert re.search(rf'@name\("mon{k}"\)\s+{ctl}\s*\(\)\s+\w+\s*;', src), f"mon{k} {ctl}"
-    # inside those controls, the objects with their local (unprefixed) names
-    for obj in ("table config", "action set_config", "table precondition", "action qualify",
-                "action disqualify", "table classify", "action set_class"):
-        assert re.search(rf"\b{obj}\b", src), obj
-    for reg in p4runtime.MONITOR_REGISTERS:
-        assert re.search(rf"register<bit<\d+>>\([A-Z_]+\)\s+{reg}\s*;", src), reg
+        assert re.search(rf"\bMonitor\s*\(\s*\)\s+mon{k}\s*;", src), f"mon{k}"
+    names = derived_names(src)
+    want = {p4runtime.TABLE_FORWARD: "table", p4runtime.TABLE_MONITORED_PORT: "table",
+            p4runtime.TABLE_PLANT_PREFIX: "table", p4runtime.ACTION_SET_EGRESS: "action",
+            p4runtime.ACTION_SET_MONITORED: "action", p4runtime.ACTION_SET_PLANT: "action",
+            p4runtime.REGISTER_LAST_SEQ: "register", "CivicIngress.drop": "action"}
+    for k in range(MONITOR_SLOTS_V1):
+        for t in ("config", "precondition", "classify"):
+            want[p4runtime.mon(k, t)] = "table"
+        for a in ("set_config", "qualify", "disqualify", "set_class"):
+            want[p4runtime.mon(k, a)] = "action"
+        for r in p4runtime.MONITOR_REGISTERS:
+            want[p4runtime.mon(k, r)] = "register"
+    assert names == want
+
+
+def test_derived_names_match_fixture_p4info():
+    """Every table, action and register of the hand-written P4Info fixture is one the program has."""
+    fixture = ROOT / "tests/fixtures/civic.p4info.txtpb"
+    if not fixture.exists():
+        pytest.skip("no P4Info fixture")
+    schema = p4runtime.P4Schema.from_text(fixture.read_text())
+    names = derived_names(source(V1 / "civic.p4"))
+    for kind, have in (("table", schema.tables), ("action", schema.actions), ("register", schema.registers)):
+        for n in have:
+            if n != "NoAction":
+                assert names.get(n) == kind, f"fixture {kind} {n} is not in the program"
+
+
+def test_tna_derived_names():
+    src = source(TNA / "civic.p4")
+    names = derived_names(src)
+    v1 = derived_names(source(V1 / "civic.p4"))
+    n = tna_config()["TNA_MONITORS"]
+    assert names == {k: v for k, v in v1.items() if not re.match(rf"CivicIngress\.mon([{n}-9])\.", k)}
 
 
 def test_v1model_key_and_parameter_names():
@@ -343,7 +450,7 @@ def test_tna_names():
                  p4runtime.REGISTER_LAST_SEQ, "CivicIngress.drop"):
         assert f'@name(".{full}")' in src, full
     for k in range(tna_config()["TNA_MONITORS"]):
-        assert re.search(rf'@name\("mon{k}"\)', src), k
+        assert re.search(rf"\bMonitor\s*\([^;]*\)\s+mon{k}\s*;", src), k
     for reg in p4runtime.MONITOR_REGISTERS:
         assert re.search(rf"Register<bit<\d+>,\s*bit<\d+>>\([A-Z_]+(,\s*0)?\)\s+{reg}\s*;", src), reg
     for obj in ("table config", "action set_config", "table precondition", "action qualify",

@@ -73,6 +73,7 @@ struct monitor_md_t {
 struct ig_metadata_t {
     bit<1>       monitored;  // monitored_port hit
     bit<1>       in_prefix;  // plant_prefix hit
+    bit<1>       plant;      // monitored and in_prefix: a plant message
     bit<8>       slot;       // ipv4.src_addr[7:0]
     bit<32>      seq_m1;     // seq - 1
     bit<1>       gap;

@@ -35,6 +35,7 @@ parser CivicIngressParser(packet_in pkt,
         hdr.bridge.cls0 = CLASS_NOT_EVALUATED;
         meta.monitored = 0;
         meta.in_prefix = 0;
+        meta.plant = 0;
         meta.gap = 0;
         transition parse_ethernet;
     }

@@ -1,0 +1,172 @@
+/*
+ * CIVIC v1model -- one monitor slot (docs/pipeline.md sections 2, 3, 4, 6).
+ *
+ * CivicIngress instantiates this control once per slot, as mon0 .. mon3
+ * (`Monitor() mon0;` ...). Every control-plane object of a slot is
+ * declared directly in this control, so that p4c names it
+ * CivicIngress.monK.<object> (the inliner prefixes an inlined instance's
+ * objects with the instance name, ComputeNewNames in
+ * frontends/p4/inlining.cpp, and HierarchicalNames prefixes the top-level
+ * control's name) -- the names civic/p4runtime.py looks up:
+ *
+ *   table  config        keyless; default action set_config(enabled,
+ *                        signal, window, ring_len, lsq), set by the control
+ *                        plane (initially set_config(0, 0, 0, 0, 0): the
+ *                        slot is disabled and touches no register)
+ *   table  precondition  l1 l2 l3 l4 p1 v1 v2 range -> qualify (q = 1);
+ *                        miss -> disqualify (q = 0)
+ *   table  classify      slope_key range (32 bit), level range (16 bit)
+ *                        -> set_class(cls); miss -> default set_class(3),
+ *                        the control plane sets the monitor's default_class
+ *   registers ring bit<16> x 32768, ptr bit<8>, run bit<8>, s0 bit<32>,
+ *             s1 bit<32> (x 256 each)
+ *
+ * Objects without control-plane state (signal selection, slope) are
+ * sub-controls in their own files; an instance of a control that declares
+ * no table, action or extern adds nothing to the P4Info.
+ *
+ * Per plant message, when the slot is enabled:
+ *   x = the configured signal; q = precondition(l1..p1, v1, v2)
+ *   run = q ? (gap ? 1 : min(run + 1, 255)) : 0
+ *   old = ring[ptr]; ring[ptr] = x; ptr = (ptr + 1 == R) ? 0 : ptr + 1
+ *   s1  = s1 + s0 - R * old          (s0 before its update)
+ *   s0  = s0 + x - old
+ *   slope, slope_key                 (slope.p4)
+ *   cls = run >= W ? classify(slope_key, x) : 0
+ * The ring, pointer and sums are updated for every plant message,
+ * qualifying or not; all bit<32> arithmetic is modular, as in the model.
+ *
+ * Ring cell of (slot, ptr) = slot * MAX_WINDOW + ptr. The index takes
+ * ptr[6:0]: with R <= MAX_WINDOW the pointer is always < R and this is
+ * exactly slot * 128 + ptr; the mask only matters if the control plane
+ * shrinks R while a plant has state (civic configure clears the slot's
+ * registers when a monitor changes), and then keeps every plant in its own
+ * cells.
+ */
+#ifndef _CIVIC_V1MODEL_MONITOR_P4_
+#define _CIVIC_V1MODEL_MONITOR_P4_
+
+control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
+                inout monitor_md_t m) {
+
+    register<bit<16>>(RING_CELLS) ring;
+    register<bit<8>>(MAX_PLANTS) ptr;
+    register<bit<8>>(MAX_PLANTS) run;
+    register<bit<32>>(MAX_PLANTS) s0;
+    register<bit<32>>(MAX_PLANTS) s1;
+
+    SignalSelect() signal_select;
+    Slope() slope;
+
+    // ------------------------------------------------------------ config
+    action set_config(bit<1> enabled, bit<2> signal, bit<8> window,
+                      bit<8> ring_len, bit<1> lsq) {
+        m.enabled = enabled;
+        m.signal = signal;
+        m.window = window;
+        m.ring_len = ring_len;
+        m.lsq = lsq;
+    }
+
+    table config {
+        actions = {
+            set_config;
+        }
+        default_action = set_config(0, 0, 0, 0, 0);   // disabled
+        size = 1;
+    }
+
+    // ------------------------------------------------------------ precondition
+    action qualify() {
+        m.q = 1;
+    }
+
+    action disqualify() {
+        m.q = 0;
+    }
+
+    table precondition {
+        key = {
+            msg.l1: range @name("l1");
+            msg.l2: range @name("l2");
+            msg.l3: range @name("l3");
+            msg.l4: range @name("l4");
+            msg.p1: range @name("p1");
+            msg.v1: range @name("v1");
+            msg.v2: range @name("v2");
+        }
+        actions = {
+            qualify;
+            disqualify;
+        }
+        default_action = disqualify();
+        size = PRECONDITION_TABLE_SIZE;
+    }
+
+    // ------------------------------------------------------------ classification
+    action set_class(bit<2> cls) {
+        m.cls = cls;
+    }
+
+    table classify {
+        key = {
+            m.slope_key: range @name("slope_key");
+            m.level: range @name("level");
+        }
+        actions = {
+            set_class;
+        }
+        default_action = set_class(CLASS_DEFAULT);
+        size = CLASSIFY_TABLE_SIZE;
+    }
+
+    apply {
+        m.enabled = 0;
+        m.cls = CLASS_NOT_EVALUATED;
+        config.apply();
+        if (m.enabled == 1) {
+            signal_select.apply(msg, m);
+
+            m.q = 0;
+            precondition.apply();
+
+            // run counter: reset on a sequence gap, saturate at RUN_MAX
+            run.read(m.run, slot);
+            if (m.q == 0) {
+                m.run = 0;
+            } else if (gap == 1) {
+                m.run = 1;
+            } else if (m.run != RUN_MAX) {
+                m.run = m.run + 1;
+            }
+            run.write(slot, m.run);
+
+            // ring buffer: swap x in, old out; advance the pointer modulo R
+            ptr.read(m.ptr, slot);
+            m.ring_idx = (slot << MAX_WINDOW_LOG2) | (bit<32>)(m.ptr & (MAX_WINDOW - 1));
+            ring.read(m.old, m.ring_idx);
+            ring.write(m.ring_idx, m.x);
+            if (m.ptr + 1 == m.ring_len) {
+                ptr.write(slot, 0);
+            } else {
+                ptr.write(slot, m.ptr + 1);
+            }
+
+            // running sums (s1 first: it uses s0 before the update)
+            s0.read(m.s0, slot);
+            s1.read(m.s1, slot);
+            m.s1 = m.s1 + m.s0 - (bit<32>)m.ring_len * (bit<32>)m.old;
+            m.s0 = m.s0 + (bit<32>)m.x - (bit<32>)m.old;
+            s0.write(slot, m.s0);
+            s1.write(slot, m.s1);
+
+            slope.apply(m);
+
+            if (m.run >= m.window) {
+                classify.apply();
+            }
+        }
+    }
+}
+
+#endif  /* _CIVIC_V1MODEL_MONITOR_P4_ */

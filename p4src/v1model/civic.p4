@@ -29,6 +29,10 @@
  *                      ring, ptr, run, s0, s1}            K = 0..3
  */
 #include <core.p4>
+// The v1model API this program is written against (register<T> with a
+// bit<32> index, standard_metadata ports bit<9>). It is p4c's default;
+// pinning it keeps a newer default from changing the extern signatures.
+#define V1MODEL_VERSION 20180101
 #include <v1model.p4>
 
 #include "../shared/define.p4"

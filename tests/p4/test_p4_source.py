@@ -163,6 +163,9 @@ def test_v1model_control_plane_names():
     """The names of civic/p4runtime.py, as p4c will derive them (see p4src/README.md)."""
     src = source(V1 / "civic.p4")
     assert re.search(r"control\s+CivicIngress\s*\(", src)
+    # register<T>(size), read(out T, in bit<32>) is the V1MODEL_VERSION 20180101 API
+    top = (V1 / "civic.p4").read_text()
+    assert re.search(r"#define\s+V1MODEL_VERSION\s+20180101\s*\n#include\s+<v1model.p4>", top)
     assert re.search(r"V1Switch\s*\([^;]*CivicIngress\s*\(\)", src, re.S)
     # monitor slot k is one instance `Monitor() monK;` of CivicIngress
     for k in range(MONITOR_SLOTS_V1):

@@ -31,7 +31,8 @@ from scipy.signal import lfilter
 
 from civic.errors import CivicError
 from civic.plant.model import OUTSIDE, PlantModel
-from civic.plant.simulate import Recording, compile_model, initial_state, inputs_matrix, measure, simulate
+from civic.plant.simulate import Recording, initial_state, inputs_matrix, simulate
+from civic.plant.simulate import flows as plant_flows
 
 N_BLOCKS = 6          # interleaved train / held-out blocks (even: train, odd: held out)
 
@@ -142,54 +143,29 @@ class EquationError:
         return V, cens
 
     def flows(self, model: PlantModel, V: np.ndarray):
-        """Per-interval volume changes (n-1, ntanks) and outside accumulation, spill included."""
-        nt = len(model.tanks)
+        """Per-interval volume changes (n-1, ntanks) and outside accumulation, spill included.
+
+        The flows are the simulator's own right-hand side (`civic.plant.simulate.flows`),
+        evaluated at both ends of every sample interval with the command held over it
+        (trapezoid rule)."""
         tidx = {t.name: i for i, t in enumerate(model.tanks)}
-        area = np.array([t.area for t in model.tanks])
-        dt = self.dt
-        H = V / area
-        Hm = 0.5 * (H[1:] + H[:-1])
-        Vm = 0.5 * (V[1:] + V[:-1])
-        F = np.zeros((self.n - 1, nt))
-        out = np.zeros(self.n - 1)
+        n1 = self.n - 1
+        A = np.stack([self._opening(v) for v in model.valves], axis=1) if model.valves else np.zeros((self.n, 0))
+        C = np.stack([self._pump_avg(p.input, p.dead_time)[:-1] for p in model.pumps], axis=1) \
+            if model.pumps else np.zeros((n1, 0))
+        fl = plant_flows(model, np.concatenate((V[:-1], V[1:])), np.concatenate((A[:-1], A[1:])),
+                         np.concatenate((C, C)))
+        F = 0.5 * (fl.net[:n1] + fl.net[n1:]) * self.dt
+        out = 0.5 * (fl.outside[:n1] + fl.outside[n1:]) * self.dt
 
         def move(src, dst, q):
-            if src == OUTSIDE:
-                nonlocal out
-                out = out - q
-            else:
-                F[:, tidx[src]] -= q
+            nonlocal out
+            F[:, tidx[src]] -= q
             if dst == OUTSIDE:
                 out = out + q
             else:
                 F[:, tidx[dst]] += q
 
-        for p in model.pumps:
-            u = self._pump_avg(p.input, p.dead_time)[:-1]
-            c = p.gain * (1.0 - p.closure) * np.maximum(u - p.input_offset, 0.0)
-            if p.to != OUTSIDE and p.head_coeff:
-                c = c * np.maximum(1.0 - p.head_coeff * Hm[:, tidx[p.to]], 0.0)
-            if p.from_ != OUTSIDE and p.min_source_volume > 0:
-                c = np.where(Vm[:, tidx[p.from_]] >= p.min_source_volume, c, 0.0)
-            move(p.from_, p.to, c * dt)
-        eff = {}
-        for v in model.valves:
-            a = self._opening(v)
-            nexp = v.exponent()
-            eff[v.name] = np.maximum(a, 0.0) ** nexp if nexp != 1.0 else a
-        for lk in model.links:
-            k = lk.coeff * (1.0 - lk.closure)
-            if lk.valve is not None:
-                k = k * eff[lk.valve]
-            i = tidx[lk.from_]
-            if lk.law == "orifice":
-                h = np.maximum(H[:, i] - lk.min_level, 0.0)
-                q = k * (np.sqrt(h) if lk.exponent == 0.5 else h ** lk.exponent)
-            else:
-                d = H[:, i] - H[:, tidx[lk.to]]
-                q = k * np.sign(d) * (np.sqrt(np.abs(d)) if lk.exponent == 0.5 else np.abs(d) ** lk.exponent)
-            q = np.broadcast_to(q, (self.n,))
-            move(lk.from_, lk.to, 0.5 * (q[1:] + q[:-1]) * dt)
         # overflow: instantaneous spill keeping the tank at its rim
         for i in model._overflow_order():
             tk = model.tanks[i]
@@ -259,11 +235,6 @@ class SimulationError:
         self.train[: int(0.65 * len(rows))] = True
         self.x0_extra: dict = {}
 
-    def U(self, model: PlantModel) -> np.ndarray:
-        if getattr(self, "_U", None) is None:
-            self._U = inputs_matrix(model, self.inputs, self.n)
-        return self._U
-
     def unmeasured(self, model: PlantModel) -> list[str]:
         sensed = {model.find("sensor", s).tank for s in self.columns}
         return [t for t in model.tank_names if t not in sensed]
@@ -280,8 +251,7 @@ class SimulationError:
 
     def simulate(self, model: PlantModel) -> dict:
         if self.horizon is None:
-            if self.x0_extra:
-                return fast_simulate(model, self.U(model), self.x0(model))
+            # compile_model is cached on the structure: fitting changes numbers, never recompiles
             return simulate(model, self.t, self.inputs, self.x0(model))
         out = {s: np.empty(self.n) for s in self.columns}
         for k in range(0, self.n, self.horizon):
@@ -325,54 +295,3 @@ def _measured_state(model: PlantModel, signals: dict, n_init: int) -> dict:
 def fully_measured(model: PlantModel, rec: Recording) -> bool:
     sensed = {s.tank for s in model.sensors if s.name in rec.signals}
     return all(t in sensed for t in model.tank_names)
-
-
-# ---------------------------------------------------------------------------------------
-# fitting-speed wrapper around civic.plant.simulate: compile once per *structure*
-# (compile_model is keyed on the whole model text, so every new parameter value would
-# recompile), then pass the numeric parameters as a vector to CompiledModel.run.
-# ---------------------------------------------------------------------------------------
-_STRUCT_CACHE: dict = {}
-
-
-def structure_key(model: PlantModel) -> tuple:
-    return (
-        model.dt, model.substeps, tuple(model.input_names),
-        tuple((t.name, None if t.overflow is None else t.overflow.to) for t in model.tanks),
-        tuple((p.name, p.input, p.from_, p.to, round(p.dead_time, 12)) for p in model.pumps),
-        tuple((v.name, v.input, v.tau > 0, v.exponent() != 1.0, round(v.dead_time, 12)) for v in model.valves),
-        tuple((lk.name, lk.from_, lk.to, lk.law, lk.valve, lk.exponent != 0.5) for lk in model.links),
-    )
-
-
-def param_vector(model: PlantModel, names: list[str]) -> np.ndarray:
-    out = np.empty(len(names))
-    for i, path in enumerate(names):
-        kind, name, attr = path.split(".", 2)
-        if kind == "tank" and attr == "overflow.volume":
-            out[i] = model.tank(name).rim_volume()
-        elif kind == "valve" and attr == "characteristic":
-            out[i] = model.find("valve", name).exponent()
-        else:
-            out[i] = float(model.get(path))
-    return out
-
-
-def fast_simulate(model: PlantModel, U: np.ndarray, x0: dict) -> dict:
-    """simulate() for fitting: same results, no recompilation when only numbers change."""
-    key = structure_key(model)
-    cm = _STRUCT_CACHE.get(key)
-    if cm is None:
-        if len(_STRUCT_CACHE) > 128:
-            _STRUCT_CACHE.clear()
-        cm = _STRUCT_CACHE[key] = compile_model(model)
-    names = model.state_names
-    xv = np.array([float(x0.get(k, 0.0)) for k in names])
-    for i, v in enumerate(model.valves):
-        if v.name not in x0:
-            xv[len(model.tanks) + i] = U[0, model.input_names.index(v.input)]
-    X = cm.run(U, xv, param_vector(model, cm.param_names))
-    nt = len(model.tanks)
-    res = measure(model, X[:, :nt])
-    res["volumes"] = X[:, :nt]
-    return res

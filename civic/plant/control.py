@@ -24,42 +24,11 @@ import scipy.linalg as sla
 from scipy.optimize import lsq_linear
 
 from civic.errors import CivicError
-from civic.plant.model import OUTSIDE, PlantModel
+from civic.plant.model import PlantModel
 from civic.plant.simulate import compile_model, measure, to_wire, _x0_vector
 
 CONTROLLED = ("T1", "T2", "T3")
 COMMANDS = ("p1", "v1", "v2")
-
-
-# ---------------------------------------------------------------------------------------
-# steady-state model (generic RHS, valves at their commands, no dead time)
-# ---------------------------------------------------------------------------------------
-def flow_rhs(model: PlantModel, V: np.ndarray, u: dict) -> np.ndarray:
-    """dV/dt for tank volumes V (ntanks,) with valves at their commanded openings."""
-    idx = {t.name: i for i, t in enumerate(model.tanks)}
-    h = np.array([v / t.area for v, t in zip(V, model.tanks)])
-    d = np.zeros(len(model.tanks))
-    opening = {v.name: max(u.get(v.input, 0.0), 0.0) ** v.exponent() for v in model.valves}
-    for p in model.pumps:
-        q = p.gain * (1 - p.closure) * max(u.get(p.input, 0.0) - p.input_offset, 0.0)
-        if p.to != OUTSIDE:
-            q *= max(1 - p.head_coeff * h[idx[p.to]], 0.0)
-        if p.from_ != OUTSIDE:
-            d[idx[p.from_]] -= q
-        if p.to != OUTSIDE:
-            d[idx[p.to]] += q
-    for lk in model.links:
-        k = lk.coeff * (1 - lk.closure) * (opening[lk.valve] if lk.valve else 1.0)
-        i = idx[lk.from_]
-        if lk.law == "orifice":
-            q = k * max(h[i] - lk.min_level, 0.0) ** lk.exponent
-        else:
-            dh = h[i] - h[idx[lk.to]]
-            q = k * math.copysign(abs(dh) ** lk.exponent, dh)
-        d[i] -= q
-        if lk.to != OUTSIDE:
-            d[idx[lk.to]] += q
-    return d
 
 
 class _Plant4:
@@ -74,7 +43,7 @@ class _Plant4:
         self.model = model
         self.tidx = [model.tank_names.index(n) for n in CONTROLLED]
 
-        # precomputed flow terms for rhs3 (the generic flow_rhs is the reference)
+        # precomputed flow terms for rhs3 (civic.plant.simulate.flows is the reference)
         m = model
         idx = {t.name: i for i, t in enumerate(m.tanks)}
         self._area = [t.area for t in m.tanks]

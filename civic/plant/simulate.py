@@ -22,7 +22,7 @@ import numpy as np
 from civic.errors import CivicError
 from civic.plant.model import OUTSIDE, PlantModel
 
-__all__ = ["CompiledModel", "compile_model", "simulate", "measure", "to_wire", "from_wire",
+__all__ = ["CompiledModel", "compile_model", "simulate", "flows", "Flows", "measure", "to_wire", "from_wire",
            "load_recording", "initial_state", "Recording", "inputs_matrix"]
 
 
@@ -121,26 +121,9 @@ class CompiledModel:
         emit = L.append
         emit("def _run(n, UA, UB, X0, P, rec):")
         ind = "    "
-        # constants
-        for i in range(nt):
-            emit(f"{ind}iA{i} = 1.0 / {self._area[i]}")
-        for i, r in self._rim.items():
-            emit(f"{ind}R{i} = {r}")
-        for i, p in enumerate(self._pump):
-            emit(f"{ind}G{i} = {p['gain']} * (1.0 - {p['closure']})")
-            emit(f"{ind}MS{i} = {p['ms']}")
-            emit(f"{ind}HC{i} = {p['hc']}")
-            emit(f"{ind}OF{i} = {p['off']}")
-        for i, lk in enumerate(self._link):
-            emit(f"{ind}K{i} = {lk['coeff']} * (1.0 - {lk['closure']})")
-            if lk["ml"] is not None:
-                emit(f"{ind}ML{i} = {lk['ml']}")
-            if lk["ex"] is not None:
-                emit(f"{ind}EX{i} = {lk['ex']}")
+        self._emit_constants(emit, ind)
         exp = "np.exp" if batch else "exp"
         for i, v in enumerate(self._valve):
-            if v["n"] is not None:
-                emit(f"{ind}NV{i} = {v['n']}")
             if v["tau"] is not None:
                 for j, (_, h, _) in enumerate(self._segs):
                     emit(f"{ind}EH{i}_{j} = {exp}(-{h!r} / {v['tau']})")
@@ -160,11 +143,7 @@ class CompiledModel:
                 src = "UA" if (a.f > 0 and f0 < a.f) else "UB"
                 var = f"up{a.index}" if a.kind == "pump" else f"uv{a.index}"
                 emit(f"{ind2}{var} = {src}[{ai}][k]")
-            for i, p in enumerate(self._pump):
-                if batch:
-                    emit(f"{ind2}c{i} = G{i} * np.maximum(up{i} - OF{i}, 0.0)")
-                else:
-                    emit(f"{ind2}c{i} = G{i} * (up{i} - OF{i} if up{i} > OF{i} else 0.0)")
+            self._emit_pump_commands(emit, ind2, batch)
             for i, v in enumerate(self._valve):
                 if v["tau"] is None:
                     emit(f"{ind2}a{i} = uv{i}")
@@ -175,6 +154,56 @@ class CompiledModel:
             self._emit_rk4(emit, body_ind, h, j, batch)
         emit(f"{ind2}rec(({', '.join(state)},))")
         return "\n".join(L) + "\n"
+
+    def _flows_source(self) -> str:
+        """Vectorised right-hand side: flows(X tanks, A openings, C pump commands, P)."""
+        nt = self.ntanks
+        L = []
+        emit = L.append
+        ind = "    "
+        emit("def _flows(X, A, C, P):")
+        self._emit_constants(emit, ind)
+        for i in range(nt):
+            emit(f"{ind}x{i} = X[{i}]")
+        for i, v in enumerate(self._valve):
+            emit(f"{ind}e{i} = np.maximum(A[{i}], 0.0) ** NV{i}" if v["n"] is not None else f"{ind}e{i} = A[{i}]")
+        for i in range(len(self._pump)):
+            emit(f"{ind}up{i} = C[{i}]")
+        self._emit_pump_commands(emit, ind, True)
+        terms = self._emit_flows(emit, ind, [f"x{i}" for i in range(nt)], True)
+        net = [(" ".join(t) or "0.0").removeprefix("+ ") for t in terms]
+        pumps = ", ".join(f"q{i}p" for i in range(len(self._pump)))
+        links = ", ".join(f"q{i}l" for i in range(len(self._link)))
+        emit(f"{ind}return [{pumps}], [{links}], [{', '.join(net)}]")
+        return "\n".join(L) + "\n"
+
+    def _emit_pump_commands(self, emit, ind, batch):
+        for i in range(len(self._pump)):
+            if batch:
+                emit(f"{ind}c{i} = G{i} * np.maximum(up{i} - OF{i}, 0.0)")
+            else:
+                emit(f"{ind}c{i} = G{i} * (up{i} - OF{i} if up{i} > OF{i} else 0.0)")
+
+    def _emit_constants(self, emit, ind):
+        nt = self.ntanks
+        for i in range(nt):
+            emit(f"{ind}iA{i} = 1.0 / {self._area[i]}")
+        for i, r in self._rim.items():
+            emit(f"{ind}R{i} = {r}")
+        for i, p in enumerate(self._pump):
+            emit(f"{ind}G{i} = {p['gain']} * (1.0 - {p['closure']})")
+            emit(f"{ind}MS{i} = {p['ms']}")
+            emit(f"{ind}HC{i} = {p['hc']}")
+            emit(f"{ind}OF{i} = {p['off']}")
+        for i, lk in enumerate(self._link):
+            emit(f"{ind}K{i} = {lk['coeff']} * (1.0 - {lk['closure']})")
+            if lk["ml"] is not None:
+                emit(f"{ind}ML{i} = {lk['ml']}")
+            if lk["ex"] is not None:
+                emit(f"{ind}EX{i} = {lk['ex']}")
+        for i, v in enumerate(self._valve):
+            if v["n"] is not None:
+                emit(f"{ind}NV{i} = {v['n']}")
 
     def _emit_rk4(self, emit, ind, h, j, batch):
         m = self.model
@@ -206,55 +235,7 @@ class CompiledModel:
                         emit(f"{ind}e{i} = _o ** NV{i} if _o > 0.0 else 0.0")
                 else:
                     emit(f"{ind}e{i} = {base}")
-            terms = [[] for _ in range(nt + 1)]  # last: outside
-            tid = lambda name: nt if name == OUTSIDE else self._tidx[name]  # noqa: E731
-            for i, p in enumerate(m.pumps):
-                src, dst = tid(p.from_), tid(p.to)
-                q = f"q{i}p"
-                expr = f"c{i}"
-                if batch:
-                    if dst < nt:
-                        expr += f" * np.maximum(1.0 - HC{i} * {ys[dst]} * iA{dst}, 0.0)"
-                    if src < nt:
-                        expr = f"np.where({ys[src]} >= MS{i}, {expr}, 0.0)"
-                    emit(f"{ind}{q} = {expr}")
-                else:
-                    if dst < nt:
-                        emit(f"{ind}_t = 1.0 - HC{i} * {ys[dst]} * iA{dst}")
-                        expr = f"(c{i} * _t if _t > 0.0 else 0.0)"
-                    if src < nt:
-                        expr = f"({expr} if {ys[src]} >= MS{i} else 0.0)"
-                    emit(f"{ind}{q} = {expr}")
-                terms[src].append(f"- {q}")
-                terms[dst].append(f"+ {q}")
-            for i, lk in enumerate(m.links):
-                src, dst = tid(lk.from_), tid(lk.to)
-                q = f"q{i}l"
-                kk = f"K{i}"
-                if lk.valve is not None:
-                    vi = [v.name for v in m.valves].index(lk.valve)
-                    kk += f" * e{vi}"
-                ex = self._link[i]["ex"]
-                if lk.law == "orifice":
-                    emit(f"{ind}_h = {ys[src]} * iA{src} - ML{i}")
-                    if batch:
-                        root = f"np.maximum(_h, 0.0) ** EX{i}" if ex else "np.sqrt(np.maximum(_h, 0.0))"
-                        emit(f"{ind}{q} = {kk} * {root}")
-                    else:
-                        root = f"_h ** EX{i}" if ex else "sqrt(_h)"
-                        emit(f"{ind}{q} = {kk} * {root} if _h > 0.0 else 0.0")
-                else:
-                    emit(f"{ind}_d = {ys[src]} * iA{src} - {ys[dst]} * iA{dst}")
-                    if batch:
-                        root = f"np.abs(_d) ** EX{i}" if ex else "np.sqrt(np.abs(_d))"
-                        emit(f"{ind}{q} = {kk} * np.sign(_d) * {root}")
-                    else:
-                        if ex:
-                            emit(f"{ind}{q} = {kk} * _d ** EX{i} if _d >= 0.0 else -{kk} * (-_d) ** EX{i}")
-                        else:
-                            emit(f"{ind}{q} = {kk} * sqrt(_d) if _d >= 0.0 else -{kk} * sqrt(-_d)")
-                terms[src].append(f"- {q}")
-                terms[dst].append(f"+ {q}")
+            terms = self._emit_flows(emit, ind, ys, batch)
             for i in range(nt):
                 t = " ".join(terms[i]) or "0.0"
                 if t.startswith("+ "):
@@ -284,6 +265,63 @@ class CompiledModel:
                 emit(f"{ind}    {dst} = {dst} + (x{i} - R{i})")
                 emit(f"{ind}    x{i} = R{i}")
 
+    def _emit_flows(self, emit, ind, ys, batch) -> list[list[str]]:
+        """Emit every pump and link flow (q{i}p, q{i}l) for tank volumes `ys`, pump commands
+        c{i} and effective valve openings e{i}; return per tank (last: outside) its terms.
+        The integrator's right-hand side and `flows()` are both generated from here."""
+        m = self.model
+        nt = self.ntanks
+        terms = [[] for _ in range(nt + 1)]  # last: outside
+        tid = lambda name: nt if name == OUTSIDE else self._tidx[name]  # noqa: E731
+        for i, p in enumerate(m.pumps):
+            src, dst = tid(p.from_), tid(p.to)
+            q = f"q{i}p"
+            expr = f"c{i}"
+            if batch:
+                if dst < nt:
+                    expr += f" * np.maximum(1.0 - HC{i} * {ys[dst]} * iA{dst}, 0.0)"
+                if src < nt:
+                    expr = f"np.where({ys[src]} >= MS{i}, {expr}, 0.0)"
+                emit(f"{ind}{q} = {expr}")
+            else:
+                if dst < nt:
+                    emit(f"{ind}_t = 1.0 - HC{i} * {ys[dst]} * iA{dst}")
+                    expr = f"(c{i} * _t if _t > 0.0 else 0.0)"
+                if src < nt:
+                    expr = f"({expr} if {ys[src]} >= MS{i} else 0.0)"
+                emit(f"{ind}{q} = {expr}")
+            terms[src].append(f"- {q}")
+            terms[dst].append(f"+ {q}")
+        for i, lk in enumerate(m.links):
+            src, dst = tid(lk.from_), tid(lk.to)
+            q = f"q{i}l"
+            kk = f"K{i}"
+            if lk.valve is not None:
+                vi = [v.name for v in m.valves].index(lk.valve)
+                kk += f" * e{vi}"
+            ex = self._link[i]["ex"]
+            if lk.law == "orifice":
+                emit(f"{ind}_h = {ys[src]} * iA{src} - ML{i}")
+                if batch:
+                    root = f"np.maximum(_h, 0.0) ** EX{i}" if ex else "np.sqrt(np.maximum(_h, 0.0))"
+                    emit(f"{ind}{q} = {kk} * {root}")
+                else:
+                    root = f"_h ** EX{i}" if ex else "sqrt(_h)"
+                    emit(f"{ind}{q} = {kk} * {root} if _h > 0.0 else 0.0")
+            else:
+                emit(f"{ind}_d = {ys[src]} * iA{src} - {ys[dst]} * iA{dst}")
+                if batch:
+                    root = f"np.abs(_d) ** EX{i}" if ex else "np.sqrt(np.abs(_d))"
+                    emit(f"{ind}{q} = {kk} * np.sign(_d) * {root}")
+                else:
+                    if ex:
+                        emit(f"{ind}{q} = {kk} * _d ** EX{i} if _d >= 0.0 else -{kk} * (-_d) ** EX{i}")
+                    else:
+                        emit(f"{ind}{q} = {kk} * sqrt(_d) if _d >= 0.0 else -{kk} * sqrt(-_d)")
+            terms[src].append(f"- {q}")
+            terms[dst].append(f"+ {q}")
+        return terms
+
     def _function(self, batch: bool):
         if batch not in self._fn:
             src = self._source(batch)
@@ -292,6 +330,14 @@ class CompiledModel:
             self._fn[batch] = ns["_run"]
             self._src = src
         return self._fn[batch]
+
+    def flows_function(self):
+        """The generated vectorised right-hand side `_flows(X, A, C, P)` (see `flows`)."""
+        if "flows" not in self._fn:
+            ns = {"np": np}
+            exec(compile(self._flows_source(), f"<plant {self.model.name} flows>", "exec"), ns)
+            self._fn["flows"] = ns["_flows"]
+        return self._fn["flows"]
 
     # ---- running ----------------------------------------------------------------------
     def _delayed(self, U: np.ndarray):
@@ -398,6 +444,47 @@ def compile_model(model: PlantModel) -> CompiledModel:
             _CACHE.clear()
         cm = _CACHE[key] = CompiledModel(model)
     return cm
+
+
+@dataclass
+class Flows:
+    """Instantaneous flows (L/s) at given states; arrays over samples (first axis)."""
+    pumps: np.ndarray      # (n, npumps) delivered by each pump (from -> to)
+    links: np.ndarray      # (n, nlinks) through each link, positive from -> to
+    net: np.ndarray        # (n, ntanks) net inflow of each tank (overflow spill not included)
+    outside: np.ndarray    # (n,) net flow to "outside"
+
+
+def flows(model: PlantModel, volumes, openings, commands, params=None) -> Flows:
+    """The model's right-hand side, vectorised: the same generated code as the integrator's.
+
+    volumes (n, ntanks) L; openings (n, nvalves) valve positions (before the
+    characteristic); commands (n, npumps) the command each pump acts on now (already
+    delayed by its dead time and limited). params: None (the model's values) or a
+    vector in `compile_model(model).param_names` order. The instantaneous overflow
+    spill is not a flow: it happens between integration steps (see `simulate`).
+    """
+    cm = compile_model(model)
+    V = np.atleast_2d(np.asarray(volumes, float))
+    n = V.shape[0]
+
+    def cols(a, k, what):
+        a = np.asarray(a, float).reshape(n, -1) if k else np.zeros((n, 0))
+        if a.shape != (n, k):
+            raise CivicError(f"flows: {what} must have shape ({n}, {k}), got {a.shape}")
+        return list(a.T)
+
+    if V.shape[1] != cm.ntanks:
+        raise CivicError(f"flows: volumes must have shape (n, {cm.ntanks})")
+    P = cm.params_for(model) if params is None else np.asarray(params, float)
+    qp, ql, net = cm.flows_function()(list(V.T), cols(openings, cm.nvalves, "openings"),
+                                      cols(commands, len(model.pumps), "commands"), list(P))
+
+    def stack(qs):
+        return np.stack([np.broadcast_to(q, (n,)) for q in qs], axis=1) if qs else np.zeros((n, 0))
+
+    net = stack(net)
+    return Flows(stack(qp), stack(ql), net[:, :cm.ntanks], net[:, cm.ntanks])
 
 
 # ---------------------------------------------------------------------------------------

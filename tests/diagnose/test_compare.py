@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from civic.diagnose.compare import EquationError, SimulationError, fast_simulate, holdout_mask
+from civic.diagnose.compare import EquationError, SimulationError, holdout_mask
 from civic.plant.model import Link, Overflow, PlantModel
-from civic.plant.simulate import Recording, inputs_matrix, simulate
+from civic.plant.simulate import Recording, simulate
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -67,22 +67,6 @@ def test_equation_error_matches_simulator(nominal, name):
         Rn = ee.residuals(nominal)
         assert np.max(np.abs(Rn.mean(axis=0) / (sd / np.sqrt(len(R))))) > 8 or \
             np.max(np.sqrt(np.mean(Rn ** 2, axis=0)) / sd) > 2
-
-
-def test_fast_simulate_equals_simulate(nominal):
-    m = _variant(nominal, "leak")
-    m.find("pump", "P1").head_coeff = 0.02
-    n = 1500
-    t = np.arange(n) * m.dt
-    u = _inputs(n, 5)
-    x0 = {"T1": 7.0, "T2": 6.0, "T3": 5.0, "T4": 22.0}
-    ref = simulate(m, t, u, x0)
-    for _ in range(2):   # second call: the cached structure with new numbers
-        got = fast_simulate(m, inputs_matrix(m, u, n), x0)
-        for s in m.signal_names:
-            assert np.allclose(got[s], ref[s], atol=1e-9)
-        m.set("link.leak.coeff", 0.03)
-        ref = simulate(m, t, u, x0)
 
 
 def test_holdout_blocks_alternate():

@@ -12,7 +12,7 @@ import pytest
 from civic.cli import main as civic_main
 from civic.plant.model import Link, PlantModel
 from civic.plant.procedures import make_procedure, monitor_slopes, run_procedure
-from civic.plant.simulate import compile_model, load_recording, simulate, to_wire
+from civic.plant.simulate import compile_model, flows, load_recording, simulate, to_wire
 
 ROOT = Path(__file__).resolve().parents[2]
 PLANT = ROOT / "configs" / "plant.toml"
@@ -261,7 +261,7 @@ def test_to_wire_clips_and_rounds(plant):
 
 
 def test_controller_rhs_matches_generic_flows(plant):
-    from civic.plant.control import _Plant4, flow_rhs
+    from civic.plant.control import _Plant4
 
     m = plant.copy()
     m.links.append(Link("leak", "T3", "outside", 0.02))
@@ -270,8 +270,34 @@ def test_controller_rhs_matches_generic_flows(plant):
     rng = np.random.default_rng(0)
     for _ in range(5):
         x, u = rng.uniform(1, 9, 3), rng.uniform(0, 1, 3)
-        ref = flow_rhs(m, np.array([*x, 30.0]), dict(zip(("p1", "v1", "v2"), u)))[:3]
+        ref = flows(m, [[*x, 30.0]], [u[1:]], [u[:1]]).net[0, :3]
         np.testing.assert_allclose(p.rhs3(x, u), ref, atol=1e-12)
+
+
+def test_flows_is_the_integrators_right_hand_side(plant):
+    """flows() at a state = the simulator's dV/dt there (one tiny step), every flow kind."""
+    m = plant.copy()
+    m.dt, m.substeps = 1e-7, 1
+    m.links.append(Link("leak", "T2", "outside", 0.02, exponent=0.7, min_level=0.5))
+    m.set("valve.V2.characteristic", 1.5)
+    m.set("pump.P1.head_coeff", 0.03)
+    m.set("pump.P1.input_offset", 0.1)
+    rng = np.random.default_rng(2)
+    for _ in range(4):
+        V = rng.uniform(1, 9, 4)
+        V[3] = rng.uniform(0.5, 30)          # sometimes below the pump's dry-run limit
+        a, u = rng.uniform(0, 1, 2), rng.uniform(0, 1, 3)
+        r = simulate(m, [0.0, m.dt], {"p1": u[0], "v1": u[1], "v2": u[2]},
+                     dict(zip(m.state_names, [*V, *a])))
+        fl = flows(m, [V], [a], [u[:1]])
+        np.testing.assert_allclose((r["volumes"][1] - V) / m.dt, fl.net[0], atol=1e-6)
+        np.testing.assert_allclose(np.diff(r["outside"]) / m.dt, fl.outside, atol=1e-6)
+        assert fl.pumps.shape == (1, 1) and fl.links.shape == (1, 4)
+    # vectorised over samples, closed form for one orifice
+    one = single_tank(0.3, 2.0)
+    V = np.linspace(0, 8, 9)[:, None]
+    np.testing.assert_allclose(flows(one, V, np.zeros((9, 0)), np.zeros((9, 1))).links[:, 0],
+                               0.3 * np.sqrt(V[:, 0] / 2.0))
 
 
 def test_compiled_model_is_shared_across_parameter_values(plant):
@@ -283,6 +309,12 @@ def test_compiled_model_is_shared_across_parameter_values(plant):
     a = simulate(plant, t, {}, x0)["volumes"]
     b = simulate(m2, t, {}, x0)["volumes"]
     assert b[10, 1] < a[10, 1] - 0.02               # the faster pipe drains T2 faster into T3
+    # the shared integrator gives what a fresh compilation of m2 gives
+    from civic.plant.simulate import CompiledModel, _x0_vector, inputs_matrix
+
+    U = inputs_matrix(m2, {}, 100)
+    fresh = CompiledModel(m2).run(U, _x0_vector(m2, x0, U))[:, :4]
+    np.testing.assert_array_equal(b, fresh)
     m3 = plant.copy()
     m3.set("pump.P1.dead_time", 0.45)
     assert compile_model(m3) is not compile_model(plant)

@@ -31,7 +31,7 @@
 // The ring register is MAX_PLANTS * MAX_WINDOW cells; the cell of (slot,
 // ptr) is slot * MAX_WINDOW + ptr. MAX_WINDOW is a power of two so that
 // the index is slot ++ ptr[6:0] and a stale pointer can never reach into
-// the next plant's cells (see data_collection.p4).
+// the next plant's cells (see v1model/include/control/monitor.p4).
 #define MAX_WINDOW 128
 #define MAX_WINDOW_LOG2 7
 #define RING_CELLS 32768          // MAX_PLANTS * MAX_WINDOW

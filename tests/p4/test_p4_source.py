@@ -409,7 +409,7 @@ def test_tna_checksum_arithmetic_matches_the_model():
 @pytest.mark.parametrize("window,lsq", [(20, True), (90, True), (21, True), (2, True), (128, True),
                                         (20, False), (2, False), (127, False)])
 def test_tna_slope_key_arithmetic_matches_the_model(window, lsq):
-    """data_collection.p4 + slope.p4 (TNA) transcribed, against the software model's registers and slope."""
+    """monitor.p4 + slope.p4 (TNA) transcribed, against the software model's registers and slope."""
     from civic.pipeline import slope as model_slope
 
     m32, bias = 0xFFFFFFFF, 0x80000000

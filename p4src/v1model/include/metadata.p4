@@ -15,7 +15,7 @@ struct headers_t {
 
 // Working state of one monitor slot for the packet being processed.
 // Nothing here persists between packets: the persistent state is in the
-// registers of data_collection.p4.
+// registers of control/monitor.p4.
 struct monitor_md_t {
     // set_config(...) of the slot's keyless config table
     bit<1>  enabled;

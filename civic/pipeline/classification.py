@@ -1,4 +1,4 @@
-"""Twin of control/classification.p4: precondition range table and class range table."""
+"""Twin of the precondition and classify range tables in control/monitor.p4."""
 from __future__ import annotations
 
 import numpy as np

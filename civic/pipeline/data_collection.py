@@ -1,4 +1,4 @@
-"""Twin of control/data_collection.p4: ring buffer, pointer, run counter, running sums."""
+"""Twin of the registers in control/monitor.p4: ring buffer, pointer, run counter, running sums."""
 from __future__ import annotations
 
 import numpy as np

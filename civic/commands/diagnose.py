@@ -29,13 +29,6 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def default_model_path() -> Path:
-    here = Path("configs/plant.toml")
-    if here.exists():
-        return here
-    return Path(__file__).resolve().parents[2] / "configs" / "plant.toml"
-
-
 def _check_out(path: str | None, suffixes: tuple[str, ...]) -> None:
     if path is None:
         return
@@ -47,6 +40,7 @@ def _check_out(path: str | None, suffixes: tuple[str, ...]) -> None:
 
 
 def run(args) -> int:
+    from civic.commands.simulate import default_model_path
     from civic.diagnose import data
     from civic.diagnose.fit import diagnose
     from civic.diagnose.report import build_report, plot, print_summary, write_json

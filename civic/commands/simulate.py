@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
+from civic.plant.figures import save_figure
 from civic.plant.simulate import EPOCH, write_recording
 
 
@@ -228,13 +229,7 @@ def _plot_run(path, model, t, signals, title):
     a2.set_ylabel("command")
     a2.set_xlabel("t (s)")
     a2.legend(loc="best", fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout()
-    try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
-    plt.close(fig)
+    save_figure(fig, path, title)
 
 
 def _plot_compare(path, model, t, recorded, sim, title):
@@ -255,10 +250,4 @@ def _plot_compare(path, model, t, recorded, sim, title):
     ax.set_ylabel("command")
     ax.set_xlabel("t (s)")
     ax.legend(loc="best", fontsize=8)
-    fig.suptitle(f"{title}: recorded vs {model.name}")
-    fig.tight_layout()
-    try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
-    plt.close(fig)
+    save_figure(fig, path, f"{title}: recorded vs {model.name}")

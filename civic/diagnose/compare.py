@@ -31,7 +31,7 @@ from scipy.signal import lfilter
 
 from civic.errors import CivicError
 from civic.plant.model import OUTSIDE, PlantModel
-from civic.plant.simulate import Recording, initial_state, inputs_matrix, simulate
+from civic.plant.simulate import Recording, initial_state, inputs_matrix, measured_state, simulate
 from civic.plant.simulate import flows as plant_flows
 
 N_BLOCKS = 6          # interleaved train / held-out blocks (even: train, odd: held out)
@@ -244,7 +244,7 @@ class SimulationError:
         if k == 0 and self.x0_extra:
             # measured tanks from the data, unmeasured ones as given (fitted nuisance values)
             part = {key: val for key, val in self.x0_extra.items()}
-            sensed_only = _measured_state(model, sig, max(1, self.n_init))
+            sensed_only = measured_state(model, sig, max(1, self.n_init))
             sensed_only.update(part)
             return sensed_only
         return initial_state(model, sig, self.n_init if k == 0 else 1)
@@ -257,7 +257,7 @@ class SimulationError:
         for k in range(0, self.n, self.horizon):
             e = min(self.n, k + self.horizon + 1)
             seg = simulate(model, self.t[k:e] - self.t[k], {n: v[k:e] for n, v in self.inputs.items()},
-                           _measured_state(model, {n: v[k:] for n, v in self.rec.signals.items()}, 1))
+                           measured_state(model, {n: v[k:] for n, v in self.rec.signals.items()}, 1))
             for s in self.columns:
                 out[s][k:e] = seg[s]
         return out
@@ -276,20 +276,6 @@ class SimulationError:
         if rows is not None:
             R = R[rows]
         return {s: float(np.sqrt(np.mean(R[:, j] ** 2))) for j, s in enumerate(self.columns)}
-
-
-def _measured_state(model: PlantModel, signals: dict, n_init: int) -> dict:
-    """Initial state of the measured tanks and valves only (no search for unmeasured ones)."""
-    x0 = {}
-    for s in model.sensors:
-        if s.name in signals and s.tank not in x0:
-            y = float(np.mean(np.asarray(signals[s.name], float)[:n_init]))
-            q = (y - s.offset) / s.gain if s.gain else 0.0
-            x0[s.tank] = q * model.tank(s.tank).area if s.quantity == "level" else q
-    for v in model.valves:
-        if v.input in signals:
-            x0[v.name] = float(np.clip(np.asarray(signals[v.input])[0], 0.0, 1.0))
-    return x0
 
 
 def fully_measured(model: PlantModel, rec: Recording) -> bool:

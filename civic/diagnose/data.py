@@ -1,8 +1,8 @@
 """Recordings for diagnosis: a pcap in wire format or a CSV, in model signal names.
 
-Reading is delegated to `civic.plant.simulate.load_recording` (pcap: first
-plant's messages; CSV: `t_s` + wire fields or model signal names). Here only
-`--plant IP` (pick one gateway of a multi-plant pcap) and checks are added.
+Reading is `civic.plant.simulate.load_recording` (pcap: one plant's messages,
+`--plant IP` or the first; CSV: a time column + wire fields or model signal
+names). Here only checks and the uniform grid (lost messages) are added.
 """
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 
 from civic.errors import CivicError
 from civic.plant.model import PlantModel
-from civic.plant.simulate import Recording, from_wire, load_recording
+from civic.plant.simulate import Recording, load_recording
 
 PCAP_MAGICS = (0xA1B2C3D4, 0xA1B23C4D, 0xD4C3B2A1, 0x4D3CB2A1, 0x0A0D0D0A)
 
@@ -31,62 +31,12 @@ def load(path: str | Path, model: PlantModel, plant: str | None = None) -> Recor
     path = str(path)
     if not Path(path).exists():
         raise CivicError(f"{path}: no such file")
-    if is_pcap(path):
-        if plant is not None:
-            rec = _load_pcap_plant(path, model, plant)
-        else:
-            rec = load_recording(path, model)
-    else:
+    if not is_pcap(path):
         if plant is not None:
             raise CivicError("--plant applies to pcap recordings only")
         if not path.endswith(".csv"):
             raise CivicError(f"{path}: neither a pcap nor a .csv recording")
-        rec = _load_csv(path, model)
-    return check(rec, model)
-
-
-TIME_COLUMNS = ("t_s", "t", "time", "time_s")
-
-
-def _load_csv(path: str, model: PlantModel) -> Recording:
-    """CSV: `t_s` (or t, time, time_s) + model signal names (physical units) or wire fields."""
-    try:
-        with open(path) as fh:
-            header = [h.strip() for h in fh.readline().split(",")]
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CivicError(f"cannot read {path}: {exc}") from None
-    if "t_s" in header or not any(h.lower() in TIME_COLUMNS for h in header):
-        return load_recording(path, model)
-    tcol = next(h for h in header if h.lower() in TIME_COLUMNS)
-    try:
-        raw = np.atleast_2d(np.loadtxt(path, delimiter=",", skiprows=1, dtype=float))
-    except ValueError as exc:
-        raise CivicError(f"{path}: bad CSV: {exc}") from None
-    if raw.shape[1] != len(header):
-        raise CivicError(f"{path}: rows do not match the header's {len(header)} columns")
-    cols = {h: raw[:, i] for i, h in enumerate(header)}
-    t = cols.pop(tcol)
-    t = t - t[0]
-    names = set(model.input_names) | set(model.signal_names)
-    if set(cols) & names:
-        return Recording(t, {c: v for c, v in cols.items() if c in names}, {}, path)
-    wires = set(model.wire_fields)
-    if set(cols) & wires:
-        f = {c: v for c, v in cols.items() if c in wires}
-        return Recording(t, from_wire(model, f), {k: v.astype(np.int64) for k, v in f.items()}, path)
-    raise CivicError(f"{path}: no column matches the model's signals "
-                     f"({', '.join(model.input_names + model.signal_names)})")
-
-
-def _load_pcap_plant(path: str, model: PlantModel, plant: str) -> Recording:
-    from civic.wire import ip_to_int, read_pcap
-
-    msgs = read_pcap(path).messages
-    msgs = msgs[msgs["plant"] & (msgs["src"] == ip_to_int(plant))]
-    if len(msgs) == 0:
-        raise CivicError(f"{path}: no plant messages from {plant}")
-    fields = {name: msgs[name].astype(np.int64) for name in ("l1", "l2", "l3", "l4", "p1", "v1", "v2")}
-    return Recording(msgs["t"] - msgs["t"][0], from_wire(model, fields), fields, path)
+    return check(load_recording(path, model, plant=plant), model)
 
 
 def check(rec: Recording, model: PlantModel) -> Recording:

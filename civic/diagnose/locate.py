@@ -102,21 +102,17 @@ def find_intervals(r: np.ndarray, times: np.ndarray, sigma: float, smooth: int =
     if len(r) == 0:
         return []
     s = uniform_filter1d(r / sigma, smooth, mode="nearest") * np.sqrt(smooth)
-    bad = np.abs(s) > thresh
-    out = []
-    i, n = 0, len(bad)
-    while i < n:
-        if bad[i]:
-            j = i
-            while j + 1 < n and bad[j + 1]:
-                j += 1
-            if j - i + 1 >= min_rows:
-                out.append([float(times[i, 0]), float(times[j, 1])])
-            i = j + 1
-        else:
-            i += 1
     span = float(times[-1, 1] - times[0, 0])
-    return merge(out, gap=0.02 * span)
+    return mask_intervals(np.abs(s) > thresh, times[:, 0], times[:, 1], gap=0.02 * span, min_rows=min_rows)
+
+
+def mask_intervals(mask, t0, t1, gap: float = 0.0, min_rows: int = 1) -> list[list[float]]:
+    """[t0 of the first row, t1 of the last row] of every run of True rows (at least
+    `min_rows` long), runs closer than `gap` merged."""
+    mask = np.asarray(mask, bool)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
+    out = [[float(t0[a]), float(t1[b - 1])] for a, b in zip(edges[::2], edges[1::2]) if b - a >= min_rows]
+    return merge(out, gap=gap)
 
 
 def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict]:

@@ -15,12 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
+from civic.plant.figures import save_figure
 from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording, initial_state, simulate
 
-from .compare import EquationError, SimulationError, _measured_state, rmse
+from .compare import EquationError, SimulationError, rmse
 from .fit import Diagnosis
-from .locate import merge
+from .locate import mask_intervals, merge
 from scipy.ndimage import uniform_filter1d
 
 SHORT_HORIZON_S = 30.0
@@ -50,17 +51,7 @@ def short_horizon_rmse(model: PlantModel, rec: Recording, horizon_s: float = SHO
 
 
 def _mask_intervals(mask: np.ndarray, t: np.ndarray, dt: float, gap: float) -> list[list[float]]:
-    out, i, n = [], 0, len(mask)
-    while i < n:
-        if mask[i]:
-            j = i
-            while j + 1 < n and mask[j + 1]:
-                j += 1
-            out.append([float(t[i]), float(t[j] + dt)])
-            i = j + 1
-        else:
-            i += 1
-    return merge(out, gap=gap)
+    return mask_intervals(mask, t, t + dt, gap=gap)
 
 
 def _finding_intervals(diag: Diagnosis, prev, res, mech=None) -> list[list[float]]:
@@ -88,19 +79,8 @@ def _finding_intervals(diag: Diagnosis, prev, res, mech=None) -> list[list[float
     d = np.sum(Rp ** 2 - Ra ** 2, axis=1)
     smooth = 3 if isinstance(eng, EquationError) else 25
     s = uniform_filter1d(d, smooth, mode="nearest")
-    on = s > 2.0
-    out, i, n = [], 0, len(on)
-    while i < n:
-        if on[i]:
-            j = i
-            while j + 1 < n and on[j + 1]:
-                j += 1
-            out.append([float(eng.row_times[i, 0]), float(eng.row_times[j, 1])])
-            i = j + 1
-        else:
-            i += 1
     span = float(eng.row_times[-1, 1] - eng.row_times[0, 0])
-    return merge(out, gap=0.03 * span)
+    return mask_intervals(s > 2.0, eng.row_times[:, 0], eng.row_times[:, 1], gap=0.03 * span)
 
 
 def _resid(diag: Diagnosis, res) -> np.ndarray:
@@ -314,11 +294,4 @@ def plot(report: dict, diag: Diagnosis, rec: Recording, path: str | Path) -> Non
     axes[-1].set_xlabel("time (s)")
     title = "; ".join(f"{f['mechanism']} {f['component']}" for f in report["findings"]) or \
         ("mismatch, unexplained" if report["mismatch"] else "no significant mismatch")
-    fig.suptitle(f"civic diagnose: {title} (shaded: mismatch intervals)")
-    fig.tight_layout()
-    try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
-    finally:
-        plt.close(fig)
+    save_figure(fig, path, f"civic diagnose: {title} (shaded: mismatch intervals)")

@@ -10,6 +10,23 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def save_figure(fig, path, title: str | None = None, dpi: int = 110) -> None:
+    """tight_layout + savefig + close; an unwritable path is a one-line CivicError."""
+    import matplotlib.pyplot as plt
+
+    from civic.errors import CivicError
+
+    if title is not None:
+        fig.suptitle(title)
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=dpi)
+    except OSError as exc:
+        raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
+    finally:
+        plt.close(fig)
+
+
 def drain_sim_vs_recorded(path=ROOT / "docs" / "img" / "drain_sim_vs_recorded.png", run: str = "r1") -> Path:
     import matplotlib
     matplotlib.use("Agg")

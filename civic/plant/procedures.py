@@ -99,13 +99,7 @@ def drain_test(model: PlantModel, v0: float = 7.5, closure: float = 0.0, duratio
         raise CivicError(f"--v0 {v0}: the start volume must lie in (0, 10] L")
     if 3 * v0 > TOTAL_VOLUME:
         raise CivicError(f"--v0 {v0}: more water than the plant holds")
-    m = apply_faults(model, {"vm1": closure})
-    dur = DURATION["drain"] if duration is None else duration
-    n = int(round(dur / m.dt))
-    t = np.arange(n) * m.dt
-    v2 = np.where(t >= SWITCH_TIME - 1e-9, 1.0, 0.0)
-    x0 = {"T1": v0, "T2": v0, "T3": v0, "T4": TOTAL_VOLUME - 3 * v0, "V1": 0.0, "V2": 0.0}
-    return Procedure("drain", t, {"p1": np.zeros(n), "v1": np.zeros(n), "v2": v2}, x0, m, closure, v0)
+    return _step_test("drain", apply_faults(model, {"vm1": closure}), "v2", v0, closure, duration)
 
 
 def fill_test(model: PlantModel, v0: float = 3.0, closure: float = 0.0, duration: float | None = None) -> Procedure:
@@ -113,13 +107,19 @@ def fill_test(model: PlantModel, v0: float = 3.0, closure: float = 0.0, duration
     _check_plant(model)
     if not 0.0 <= v0 <= 10.0 or 3 * v0 > TOTAL_VOLUME:
         raise CivicError(f"--v0 {v0}: the start volume must lie in [0, 10] L")
-    m = apply_faults(model, {"vm2": closure})
-    dur = DURATION["fill"] if duration is None else duration
+    return _step_test("fill", apply_faults(model, {"vm2": closure}), "p1", v0, closure, duration)
+
+
+def _step_test(scenario: str, m: PlantModel, step: str, v0: float, closure: float,
+               duration: float | None) -> Procedure:
+    """T1..T3 at v0, the rest of the water in T4, all off; at SWITCH_TIME `step` -> 100 %."""
+    dur = DURATION[scenario] if duration is None else duration
     n = int(round(dur / m.dt))
     t = np.arange(n) * m.dt
-    p1 = np.where(t >= SWITCH_TIME - 1e-9, 1.0, 0.0)
+    inputs = {k: np.zeros(n) for k in ("p1", "v1", "v2")}
+    inputs[step] = np.where(t >= SWITCH_TIME - 1e-9, 1.0, 0.0)
     x0 = {"T1": v0, "T2": v0, "T3": v0, "T4": TOTAL_VOLUME - 3 * v0, "V1": 0.0, "V2": 0.0}
-    return Procedure("fill", t, {"p1": p1, "v1": np.zeros(n), "v2": np.zeros(n)}, x0, m, closure, v0)
+    return Procedure(scenario, t, inputs, x0, m, closure, v0)
 
 
 def make_procedure(model: PlantModel, scenario: str, v0: float | None = None, faults: dict | None = None,

@@ -23,7 +23,7 @@ from civic.errors import CivicError
 from civic.plant.model import OUTSIDE, PlantModel
 
 __all__ = ["CompiledModel", "compile_model", "simulate", "flows", "Flows", "measure", "to_wire", "from_wire",
-           "load_recording", "initial_state", "Recording", "inputs_matrix"]
+           "load_recording", "initial_state", "measured_state", "Recording", "inputs_matrix"]
 
 
 # ---------------------------------------------------------------------------------------
@@ -609,6 +609,9 @@ def from_wire(model: PlantModel, fields) -> dict:
     return out
 
 
+WIRE_COLUMNS = ("l1", "l2", "l3", "l4", "p1", "v1", "v2")   # the plant message's fields
+
+
 @dataclass
 class Recording:
     t: np.ndarray            # seconds from the first sample
@@ -617,45 +620,69 @@ class Recording:
     path: str = ""
 
 
-def load_recording(path, model: PlantModel) -> Recording:
-    """A pcap (plant messages only) or CSV (t_s + wire fields, or t_s + model names)."""
+TIME_COLUMNS = ("t_s", "t", "time", "time_s")   # CSV time column names, in order of preference
+
+
+def load_recording(path, model: PlantModel, plant: str | None = None) -> Recording:
+    """A pcap (plant messages only) or a CSV (a time column + wire fields or model names).
+
+    pcap: the messages of one plant, `plant` (its IPv4 source address) or the first
+    one seen. CSV: a header with a time column (`t_s`, `t`, `time` or `time_s`) and
+    either wire fields (l1..v2) or the model's signal/input names in physical units.
+    """
     path = str(path)
     if not Path(path).exists():
         raise CivicError(f"{path}: no such file")
     if path.endswith(".csv"):
-        try:
-            data = np.genfromtxt(path, delimiter=",", names=True, dtype=float)
-        except ValueError as exc:
-            raise CivicError(f"{path}: bad CSV: {exc}") from exc
-        if data.dtype.names is None or "t_s" not in data.dtype.names:
-            raise CivicError(f"{path}: CSV needs a header starting with t_s")
-        data = np.atleast_1d(data)
-        if len(data) == 0 or np.any(~np.isfinite(data["t_s"])):
-            raise CivicError(f"{path}: no data rows or bad t_s values")
-        cols = set(data.dtype.names)
-        wires = set(model.wire_fields)
-        names = set(model.input_names) | set(model.signal_names)
-        t = data["t_s"] - data["t_s"][0]
-        sensor_wires = {s.wire for s in model.sensors if s.wire}
-        wire_mode = bool(cols & sensor_wires) or (wires and wires <= cols)
-        if cols & names and not wire_mode:
-            sig = {c: np.asarray(data[c], float) for c in cols & names}
-            return Recording(t, sig, {}, path)
-        if cols & wires:
-            f = {c: np.asarray(data[c], float) for c in cols & wires}
-            return Recording(t, from_wire(model, f), {k: v.astype(np.int64) for k, v in f.items()}, path)
-        raise CivicError(f"{path}: no column matches the model's signals "
-                         f"({', '.join(model.input_names + model.signal_names)})")
-    from civic.wire import read_pcap
+        if plant is not None:
+            raise CivicError(f"{path}: a plant address selects messages in a pcap, not in a CSV")
+        return _load_csv(path, model)
+    from civic.wire import ip_to_int, read_pcap
+
     msgs = read_pcap(path).messages
     msgs = msgs[msgs["plant"]]
+    if plant is not None:
+        msgs = msgs[msgs["src"] == ip_to_int(plant)]
+        if len(msgs) == 0:
+            raise CivicError(f"{path}: no plant messages from {plant}")
     if len(msgs) == 0:
         raise CivicError(f"{path}: no plant messages")
-    if len(np.unique(msgs["src"])) > 1:
-        first = msgs["src"][0]
-        msgs = msgs[msgs["src"] == first]
-    fields = {name: msgs[name].astype(np.int64) for name in ("l1", "l2", "l3", "l4", "p1", "v1", "v2")}
+    msgs = msgs[msgs["src"] == msgs["src"][0]]
+    fields = {name: msgs[name].astype(np.int64) for name in WIRE_COLUMNS}
     return Recording(msgs["t"] - msgs["t"][0], from_wire(model, fields), fields, path)
+
+
+def _load_csv(path: str, model: PlantModel) -> Recording:
+    try:
+        with open(path) as fh:
+            header = [h.strip() for h in fh.readline().split(",")]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CivicError(f"cannot read {path}: {exc}") from None
+    lower = [h.lower() for h in header]
+    tcol = next((lower.index(c) for c in TIME_COLUMNS if c in lower), None)
+    if tcol is None:
+        raise CivicError(f"{path}: CSV needs a header with a time column ({', '.join(TIME_COLUMNS)})")
+    try:
+        raw = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
+    except ValueError as exc:
+        raise CivicError(f"{path}: bad CSV: {exc}") from None
+    if raw.size and raw.shape[1] != len(header):
+        raise CivicError(f"{path}: rows do not match the header's {len(header)} columns")
+    if raw.shape[0] == 0 or np.any(~np.isfinite(raw[:, tcol])):
+        raise CivicError(f"{path}: no data rows or bad {header[tcol]} values")
+    cols = {h: raw[:, i] for i, h in enumerate(header) if i != tcol}
+    t = raw[:, tcol] - raw[0, tcol]
+    wires = set(model.wire_fields)
+    names = set(model.input_names) | set(model.signal_names)
+    sensor_wires = {s.wire for s in model.sensors if s.wire}
+    wire_mode = bool(set(cols) & sensor_wires) or bool(wires and wires <= set(cols))
+    if set(cols) & names and not wire_mode:
+        return Recording(t, {c: v for c, v in cols.items() if c in names}, {}, path)
+    if set(cols) & wires:
+        f = {c: v for c, v in cols.items() if c in wires}
+        return Recording(t, from_wire(model, f), {k: v.astype(np.int64) for k, v in f.items()}, path)
+    raise CivicError(f"{path}: no column matches the model's signals "
+                     f"({', '.join(model.input_names + model.signal_names)})")
 
 
 def initial_state(model: PlantModel, signals: dict, n_init: int = 1, total_volume: float | None = None,
@@ -669,23 +696,29 @@ def initial_state(model: PlantModel, signals: dict, n_init: int = 1, total_volum
     over the first n_init samples (a short simulation per candidate, scalar search).
     """
     n_init = max(1, int(n_init))
-    x0 = {}
-    for s in model.sensors:
-        if s.name not in signals:
-            continue
-        y = np.asarray(signals[s.name], float)[:max(1, int(average))]
-        q = (np.mean(y) - s.offset) / s.gain if s.gain else 0.0
-        tank = model.tank(s.tank)
-        x0[s.tank] = q * tank.area if s.quantity == "level" else q
-    for v in model.valves:
-        if v.input in signals:
-            x0[v.name] = float(np.clip(np.asarray(signals[v.input])[0], 0.0, 1.0))
+    x0 = measured_state(model, signals, average)
     missing = [t.name for t in model.tanks if t.name not in x0]
     if missing and total_volume is not None and len(missing) == 1:
         x0[missing[0]] = total_volume - sum(x0[t.name] for t in model.tanks if t.name in x0)
         missing = []
     if missing:
         x0.update(_fit_unmeasured(model, signals, x0, missing, n_init))
+    return x0
+
+
+def measured_state(model: PlantModel, signals: dict, average: int = 1) -> dict:
+    """The measured part of the state: tanks with a sensor (mean of the first `average`
+    samples, inverted through gain/offset; the first sensor of a tank wins) and valves
+    (their first command)."""
+    x0 = {}
+    for s in model.sensors:
+        if s.name in signals and s.tank not in x0:
+            y = float(np.mean(np.asarray(signals[s.name], float)[:max(1, int(average))]))
+            q = (y - s.offset) / s.gain if s.gain else 0.0
+            x0[s.tank] = q * model.tank(s.tank).area if s.quantity == "level" else q
+    for v in model.valves:
+        if v.input in signals:
+            x0[v.name] = float(np.clip(np.asarray(signals[v.input])[0], 0.0, 1.0))
     return x0
 
 
@@ -701,11 +734,7 @@ def _fit_unmeasured(model, signals, x0, missing, n_init):
     t = np.arange(n) * model.dt
     ytrue = np.concatenate([np.asarray(signals[s.name], float)[:n] for s in sens])
     # measured tanks start at the first sample when we fit their neighbours
-    base = dict(x0)
-    for s in sens:
-        y0 = float(np.asarray(signals[s.name], float)[0])
-        q = (y0 - s.offset) / s.gain if s.gain else 0.0
-        base[s.tank] = q * model.tank(s.tank).area if s.quantity == "level" else q
+    base = {**x0, **measured_state(model, signals, 1)}
 
     def resid(z):
         x = dict(base)
@@ -724,7 +753,6 @@ def _fit_unmeasured(model, signals, x0, missing, n_init):
 
 
 EPOCH = 1767225600.0          # 2026-01-01T00:00:00Z, as in the recorded cases
-WIRE_COLUMNS = ("l1", "l2", "l3", "l4", "p1", "v1", "v2")
 
 
 def write_recording(path: str, model: PlantModel, t, signals: dict, src_ip: str = "10.0.0.1", seed=None) -> None:

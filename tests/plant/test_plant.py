@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from civic.cli import main as civic_main
+from civic.errors import CivicError
 from civic.plant.model import Link, PlantModel
 from civic.plant.procedures import make_procedure, monitor_slopes, run_procedure
 from civic.plant.simulate import compile_model, flows, load_recording, simulate, to_wire
@@ -400,3 +401,31 @@ def test_valve_dead_time_is_exact(plant):
     shifted = dict(u, v2=np.concatenate([np.zeros(3), u["v2"][:-3]]))
     np.testing.assert_allclose(simulate(m, t, u, x0)["volumes"], simulate(plant, t, shifted, x0)["volumes"],
                                atol=1e-12)
+
+
+def test_load_recording_time_columns_and_plant_address(plant, tmp_path):
+    from civic.wire import build_frames, write_pcap
+
+    one = single_tank()
+    (tmp_path / "a.csv").write_text("Time,u,y\n10,0.5,1.0\n10.1,0.6,1.1\n")
+    rec = load_recording(tmp_path / "a.csv", one)
+    assert np.allclose(rec.t, [0.0, 0.1]) and rec.signals["y"].tolist() == [1.0, 1.1]
+    (tmp_path / "b.csv").write_text("u,y\n0.5,1.0\n")
+    with pytest.raises(CivicError, match="time column"):
+        load_recording(tmp_path / "b.csv", one)
+    # two plants in one capture: the first by default, another by its address
+    n = 20
+    t = np.arange(n) * 0.1
+    frames, times = [], []
+    for k, (ip, level) in enumerate((("10.0.0.1", 5.0), ("10.0.0.2", 7.0))):
+        sig = {name: np.full(n, level) for name in ("L1", "L2", "L3", "L4")}
+        sig.update({name: np.full(n, 0.5) for name in ("p1", "v1", "v2")})
+        frames.append(build_frames(to_wire(plant, sig), src_ip=ip, seq0=0))
+        times.append(1767225600.0 + t + 0.01 * k)
+    order = np.argsort(np.concatenate(times), kind="stable")
+    write_pcap(tmp_path / "two.pcap", np.concatenate(times)[order], np.concatenate(frames)[order])
+    assert load_recording(tmp_path / "two.pcap", plant).signals["L1"][0] == 5.0
+    rec2 = load_recording(tmp_path / "two.pcap", plant, plant="10.0.0.2")
+    assert len(rec2.t) == n and rec2.signals["L1"][0] == 7.0
+    with pytest.raises(CivicError, match="no plant messages from 10.0.0.9"):
+        load_recording(tmp_path / "two.pcap", plant, plant="10.0.0.9")

@@ -25,6 +25,8 @@ class Mechanism:
     bounds: dict = field(default_factory=dict)       # name -> (lo, hi)
     fixed: dict = field(default_factory=dict)        # name -> value (not optimised, reported)
     name = "mechanism"
+    counted = True      # fixed numbers set from the data count in the BIC; False: they are references
+    hidden = ()         # fixed entries for the edit only (not in values() nor the report)
 
     # ---- parameter vector ---------------------------------------------------------------
     @property
@@ -45,11 +47,14 @@ class Mechanism:
 
     @property
     def n_params(self) -> int:
-        return len(self.params) + sum(1 for v in self.fixed.values() if isinstance(v, (int, float)))
+        n = len(self.params)
+        if self.counted:
+            n += sum(1 for v in self.fixed.values() if isinstance(v, (int, float)) and not isinstance(v, bool))
+        return n
 
     def values(self, theta=None) -> dict:
         out = dict(self.params) if theta is None else {k: float(v) for k, v in zip(self.names, theta)}
-        out.update(self.fixed)
+        out.update({k: v for k, v in self.fixed.items() if k not in self.hidden})
         return out
 
     def with_values(self, theta) -> "Mechanism":

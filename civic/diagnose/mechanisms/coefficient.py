@@ -18,6 +18,7 @@ def coefficient_paths(model, tanks=None) -> list[tuple[str, str]]:
 
 class Coefficient(Mechanism):
     name = "coefficient"
+    counted = False     # path and nominal value are references, the factor is the parameter
 
     def edit(self, model, p):
         model.set(self.fixed["path"], float(self.fixed["nominal"]) * float(p["factor"]))
@@ -26,10 +27,6 @@ class Coefficient(Mechanism):
         v = super().values(theta)
         v["value"] = float(v["nominal"]) * float(v["factor"])
         return v
-
-    @property
-    def n_params(self):
-        return len(self.params)
 
     @classmethod
     def candidates(cls, model, loc):

@@ -6,15 +6,8 @@ from .base import Mechanism
 
 class PumpHead(Mechanism):
     name = "pump_head"
-
-    @property
-    def n_params(self):
-        return len(self.params)
-
-    def values(self, theta=None):
-        v = super().values(theta)
-        v.pop("hmax", None)
-        return v
+    counted = False
+    hidden = ("hmax",)  # highest delivery level seen: scales bounds and the negligible test
 
     def edit(self, model, p):
         model.find("pump", self.component).head_coeff = max(0.0, float(p["head_coeff"]))

@@ -6,19 +6,12 @@ from .base import Mechanism, sensors_of, tanks_touching
 
 class SensorOffset(Mechanism):
     name = "sensor_offset"
+    counted = False
+    hidden = ("base",)  # the model's own offset, added to the fitted one
 
     def edit(self, model, p):
         s = model.find("sensor", self.component)
         s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
-
-    def values(self, theta=None):
-        v = super().values(theta)
-        v.pop("base", None)
-        return v
-
-    @property
-    def n_params(self):
-        return len(self.params)
 
     @classmethod
     def candidates(cls, model, loc):

@@ -174,7 +174,8 @@ class EquationError:
             at_rim = V[1:, i] >= rim - self.rim_tol
             # at the rim every net inflow spills (measured noise is not rectified into spill)
             s = np.where(at_rim, np.maximum(F[:, i], 0.0), np.maximum(pre - rim, 0.0))
-            move(tk.name, tk.overflow.to, s)
+            for dest, share in tk.overflow.targets():
+                move(tk.name, dest, share * s)
         return F, out
 
     rim_tol = 0.03  # L: a measured level this close to the rim counts as "at the rim"

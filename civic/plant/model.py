@@ -33,6 +33,14 @@ class Overflow:
     to: str = OUTSIDE                # tank name or "outside"
     level: float | None = None       # rim level, dm
     volume: float | None = None      # rim volume, L (neither: the tank's capacity)
+    fraction: float = 1.0            # share of the spill that goes to `to`
+    rest: str = OUTSIDE              # where the other 1 - fraction goes (tank or "outside")
+
+    def targets(self) -> list[tuple[str, float]]:
+        """(destination, share) of the spill; shares add up to 1."""
+        if self.fraction >= 1.0:
+            return [(self.to, 1.0)]
+        return [(self.to, self.fraction), (self.rest, 1.0 - self.fraction)]
 
 
 @dataclass
@@ -116,7 +124,7 @@ _SECTIONS = (("tank", "tanks", Tank), ("pump", "pumps", Pump), ("valve", "valves
              ("link", "links", Link), ("sensor", "sensors", Sensor))
 _FLOAT_FIELDS = {"area", "capacity", "gain", "dead_time", "closure", "min_source_volume", "head_coeff",
                  "input_offset", "tau", "coeff", "exponent", "min_level", "offset", "noise_sigma",
-                 "resolution", "min", "max", "wire_scale", "level", "volume"}
+                 "resolution", "min", "max", "wire_scale", "level", "volume", "fraction"}
 
 
 def _key(name: str) -> str:
@@ -154,7 +162,7 @@ def _dump(obj) -> dict:
     out = {}
     for f in fields(obj):
         v = getattr(obj, f.name)
-        if v is None:
+        if v is None or (isinstance(obj, Overflow) and f.name in ("fraction", "rest") and v == f.default):
             continue
         if isinstance(v, Overflow):
             v = _dump(v)
@@ -324,10 +332,13 @@ class PlantModel:
             if not (t.area > 0):
                 raise CivicError(f"{where}: tank {t.name}: area must be > 0")
             if t.overflow is not None:
-                if t.overflow.to != OUTSIDE and t.overflow.to not in tanks:
-                    raise CivicError(f"{where}: tank {t.name}: overflow to unknown tank {t.overflow.to!r}")
-                if t.overflow.to == t.name:
-                    raise CivicError(f"{where}: tank {t.name}: overflows into itself")
+                if not 0.0 <= t.overflow.fraction <= 1.0:
+                    raise CivicError(f"{where}: tank {t.name}: overflow fraction must lie in [0, 1]")
+                for dest in (t.overflow.to, t.overflow.rest):
+                    if dest != OUTSIDE and dest not in tanks:
+                        raise CivicError(f"{where}: tank {t.name}: overflow to unknown tank {dest!r}")
+                    if dest == t.name:
+                        raise CivicError(f"{where}: tank {t.name}: overflows into itself")
                 if not math.isfinite(t.rim_volume()):
                     raise CivicError(f"{where}: tank {t.name}: overflow needs a level, volume or capacity")
         self._overflow_order(where)
@@ -382,7 +393,7 @@ class PlantModel:
             t = self.tanks[i]
             # a tank must spill before its target: visit the sources first
             for j, s in enumerate(self.tanks):
-                if s.overflow is not None and s.overflow.to == t.name:
+                if s.overflow is not None and any(d == t.name for d, _ in s.overflow.targets()):
                     visit(j)
             state[i] = 2
             order.append(i)

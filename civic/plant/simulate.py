@@ -4,7 +4,8 @@ The model is compiled once (per structure) into generated straight-line Python:
 states are local floats, RK4 is unrolled, valve positioners are integrated
 exactly (first order under a held command), dead times are exact (each sample
 interval is split where a delayed command switches), overflow is an
-instantaneous spill that keeps the tank at its rim. Every flow moves water
+instantaneous spill that keeps the tank at its rim (split between two
+destinations when a fraction is given). Every flow moves water
 between two tanks (or "outside", tracked as an accumulator), so the total is
 conserved to rounding (1e-12 L).
 
@@ -73,6 +74,8 @@ class CompiledModel:
         self._area = [par(f"tank.{t.name}.area", t.area) for t in m.tanks]
         self._rim = {i: par(f"tank.{m.tanks[i].name}.overflow.volume", m.tanks[i].rim_volume())
                      for i in m._overflow_order()}
+        self._frac = {i: par(f"tank.{m.tanks[i].name}.overflow.fraction", m.tanks[i].overflow.fraction)
+                      for i in self._rim}
         self._pump = []
         for p in m.pumps:
             self._pump.append(dict(
@@ -110,7 +113,7 @@ class CompiledModel:
         self._segs = segs
         self.uses_outside = any(p.from_ == OUTSIDE or p.to == OUTSIDE for p in m.pumps) or \
             any(lk.to == OUTSIDE for lk in m.links) or \
-            any(t.overflow is not None and t.overflow.to == OUTSIDE for t in m.tanks)
+            any(t.overflow is not None and OUTSIDE in (t.overflow.to, t.overflow.rest) for t in m.tanks)
         self._fn = {}
 
     # ---- code generation --------------------------------------------------------------
@@ -190,6 +193,7 @@ class CompiledModel:
             emit(f"{ind}iA{i} = 1.0 / {self._area[i]}")
         for i, r in self._rim.items():
             emit(f"{ind}R{i} = {r}")
+            emit(f"{ind}FR{i} = {self._frac[i]}")
         for i, p in enumerate(self._pump):
             emit(f"{ind}G{i} = {p['gain']} * (1.0 - {p['closure']})")
             emit(f"{ind}MS{i} = {p['ms']}")
@@ -252,18 +256,24 @@ class CompiledModel:
         for i, v in enumerate(self._valve):
             if v["tau"] is not None:
                 emit(f"{ind}a{i} = uv{i} + (a{i} - uv{i}) * EH{i}_{j}")
-        # overflow: instantaneous spill, sources before their targets
+        # overflow: instantaneous spill, sources before their targets; a fraction FR goes
+        # to `to`, the rest (computed as spill - share: mass exact) to `rest`
         for i in self._rim:
-            to = self.model.tanks[i].overflow.to
-            dst = "out" if to == OUTSIDE else f"x{self._tidx[to]}"
+            ov = self.model.tanks[i].overflow
+            dst, rest = ("out" if d == OUTSIDE else f"x{self._tidx[d]}" for d in (ov.to, ov.rest))
             if batch:
                 emit(f"{ind}_s = np.maximum(x{i} - R{i}, 0.0)")
                 emit(f"{ind}x{i} = x{i} - _s")
-                emit(f"{ind}{dst} = {dst} + _s")
             else:
                 emit(f"{ind}if x{i} > R{i}:")
-                emit(f"{ind}    {dst} = {dst} + (x{i} - R{i})")
-                emit(f"{ind}    x{i} = R{i}")
+                ind, outer = ind + "    ", ind
+                emit(f"{ind}_s = x{i} - R{i}")
+                emit(f"{ind}x{i} = R{i}")
+            emit(f"{ind}_f = FR{i} * _s")
+            emit(f"{ind}{dst} = {dst} + _f")
+            emit(f"{ind}{rest} = {rest} + (_s - _f)")
+            if not batch:
+                ind = outer
 
     def _emit_flows(self, emit, ind, ys, batch) -> list[list[str]]:
         """Emit every pump and link flow (q{i}p, q{i}l) for tank volumes `ys`, pump commands
@@ -409,6 +419,8 @@ class CompiledModel:
             x = comp[(kind, cname)]
             if attr == "overflow.volume":
                 out[i] = x.rim_volume()
+            elif attr == "overflow.fraction":
+                out[i] = x.overflow.fraction
             elif attr == "characteristic":
                 out[i] = x.exponent()
             else:
@@ -421,7 +433,7 @@ def structure_key(model: PlantModel) -> tuple:
     dt = model.dt
     return (
         dt, model.substeps, tuple(i.name for i in model.inputs),
-        tuple((t.name, None if t.overflow is None else t.overflow.to) for t in model.tanks),
+        tuple((t.name, None if t.overflow is None else (t.overflow.to, t.overflow.rest)) for t in model.tanks),
         tuple((p.name, p.input, p.from_, p.to, _delay_split(p.dead_time, dt)) for p in model.pumps),
         tuple((v.name, v.input, v.tau > 0, v.exponent() != 1.0, _delay_split(v.dead_time, dt))
               for v in model.valves),

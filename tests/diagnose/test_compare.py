@@ -46,12 +46,15 @@ def _variant(nominal, name):
         m.find("valve", "V1").dead_time = 0.25
     elif name == "overflow":
         m.tank("T1").overflow = Overflow(to="T4", volume=8.0)
+    elif name == "overflow_split":
+        m.tank("T1").overflow = Overflow(to="T2", volume=8.0, fraction=0.6, rest="T4")
     elif name == "offset":
         m.find("sensor", "L3").offset = 0.3
     return m
 
 
-@pytest.mark.parametrize("name", ["nominal", "leak", "dead_time", "head", "valve", "overflow", "offset"])
+@pytest.mark.parametrize("name", ["nominal", "leak", "dead_time", "head", "valve", "overflow", "overflow_split",
+                                  "offset"])
 def test_equation_error_matches_simulator(nominal, name):
     true = _variant(nominal, name)
     n = 3000

@@ -429,3 +429,49 @@ def test_load_recording_time_columns_and_plant_address(plant, tmp_path):
     assert len(rec2.t) == n and rec2.signals["L1"][0] == 7.0
     with pytest.raises(CivicError, match="no plant messages from 10.0.0.9"):
         load_recording(tmp_path / "two.pcap", plant, plant="10.0.0.9")
+
+
+def test_overflow_split_is_mass_exact_and_round_trips(plant, tmp_path):
+    """`fraction` of T1's spill falls into T2, the rest leaves the plant ("outside")."""
+    m = plant.copy()
+    m.tank("T1").overflow.to, m.tank("T1").overflow.fraction, m.tank("T1").overflow.rest = "T2", 0.6, "outside"
+    m.to_toml(tmp_path / "m.toml")
+    text = (tmp_path / "m.toml").read_text()
+    assert 'to = "T2"' in text and 'fraction = 0.6' in text
+    back = PlantModel.from_toml(tmp_path / "m.toml")
+    assert back == m and back.tank("T1").overflow.targets() == [("T2", 0.6), ("outside", pytest.approx(0.4))]
+    # default fraction 1: nothing extra written, all of the spill to `to`
+    assert "fraction" not in plant.to_toml() and plant.tank("T1").overflow.targets() == [("T4", 1.0)]
+    n = 200
+    u = {"p1": np.ones(n), "v1": np.zeros(n), "v2": np.zeros(n)}    # T1 fills, nothing drains it
+    m.set("link.pipe23.coeff", 0.0)                                   # T2 only gathers the spill
+    x0 = {"T1": 9.5, "T2": 3.0, "T3": 3.0, "T4": 24.5}
+    for batch in (False, True):
+        if batch:
+            cm = compile_model(m)
+            from civic.plant.simulate import _x0_vector, inputs_matrix
+
+            U = inputs_matrix(m, u, n)
+            X = cm.run(U, np.stack([_x0_vector(m, x0, U)] * 3, axis=1))[:, :, 0]
+            vol, out = X[:, :4], cm.last_outside[:, 0]
+        else:
+            r = simulate(m, np.arange(n) * m.dt, u, x0)
+            vol, out = r["volumes"], r["outside"]
+        assert np.max(np.abs(vol.sum(axis=1) + out - 40.0)) < 1e-9        # mass exact
+        assert vol[:, 0].max() <= 10.0 + 1e-12
+        pumped = 24.5 - vol[-1, 3]
+        spilled = 9.5 + pumped - vol[-1, 0]
+        assert spilled > 4.0
+        assert vol[-1, 1] - 3.0 == pytest.approx(0.6 * spilled, rel=1e-9)
+        assert out[-1] == pytest.approx(0.4 * spilled, rel=1e-9)
+    # the fraction is a parameter of the compiled model (no recompiling to fit it)
+    m2 = m.copy()
+    m2.tank("T1").overflow.fraction = 0.2
+    assert compile_model(m2) is compile_model(m)
+    assert "tank.T1.overflow.fraction" in compile_model(m).param_names
+    for bad, msg in (({"fraction": 1.5}, "fraction must lie in"), ({"rest": "T9"}, "unknown tank 'T9'"),
+                     ({"rest": "T1"}, "overflows into itself")):
+        d = m.to_dict()
+        d["tank"][0]["overflow"].update(bad)
+        with pytest.raises(CivicError, match=msg):
+            PlantModel.from_dict(d)

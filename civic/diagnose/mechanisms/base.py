@@ -109,8 +109,10 @@ def tanks_touching(model: PlantModel, tank: str) -> set[str]:
         if tank in (p.from_, p.to):
             out |= {p.from_, p.to}
     for t in model.tanks:
-        if t.overflow is not None and tank in (t.name, t.overflow.to):
-            out |= {t.name, t.overflow.to}
+        if t.overflow is not None:
+            ends = {t.name} | {d for d, _ in t.overflow.targets()}
+            if tank in ends:
+                out |= ends
     out.discard("outside")
     return out
 
@@ -126,8 +128,9 @@ def lower_tanks(model: PlantModel) -> list[str]:
         if lk.law == "orifice" and lk.to != "outside" and lk.to not in out:
             out.append(lk.to)
     for t in model.tanks:
-        if t.overflow is not None and t.overflow.to != "outside" and t.overflow.to not in out:
-            out.append(t.overflow.to)
+        for d, _ in t.overflow.targets() if t.overflow is not None else ():
+            if d != "outside" and d not in out:
+                out.append(d)
     for p in model.pumps:
         if p.from_ != "outside" and p.from_ not in out:
             out.append(p.from_)

@@ -52,3 +52,25 @@ def test_cascaded_tanks_round_trip(tmp_path, capsys):
     assert rc == 0, out
     line = [ln for ln in out.splitlines() if ln.startswith("y_V")][0]
     assert float(line.split()[1]) < 0.5    # same model that made the data: noise + initial state only
+
+
+def test_split_overflow_fraction_is_fitted():
+    """The upper tank (unmeasured) spills half into the measured lower tank, half outside:
+    the catalogue's split overflow names it and recovers the rim and the fraction."""
+    from civic.diagnose.data import regularise
+    from civic.diagnose.fit import diagnose
+    from civic.plant.model import Overflow, PlantModel
+    from civic.plant.simulate import Recording, simulate
+
+    nominal = PlantModel.from_toml(MODEL)
+    d = np.loadtxt(DATA, delimiter=",", skiprows=1)
+    t, u = d[:, 0] - d[0, 0], d[:, 1]
+    true = nominal.copy()
+    true.tank("T1").overflow = Overflow(to="T2", volume=9.0, fraction=0.5, rest="outside")
+    sim = simulate(true, t, {"u_V": u}, {"T1": 8.0, "T2": 5.2}, noise=True, seed=3)
+    rec = regularise(Recording(t, {"u_V": u, "y_V": sim["y_V"]}, {}, "split"), nominal.dt)
+    diag = diagnose(nominal, rec, n_init=50)
+    top = diag.findings[0]
+    assert top["mechanism"].label == "overflow(T1->T2|outside)"
+    p = diag.final_all.mechanisms[0].values()
+    assert abs(p["fraction"] - 0.5) < 0.1 and abs(p["volume"] - 9.0) < 0.5, p

@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
+from scipy.ndimage import binary_closing, uniform_filter1d
 
 from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording
@@ -136,7 +136,8 @@ def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict]
         sig = noise_sigma(y) / np.sqrt(5.0)
         top = float(np.quantile(ys, 0.999))
         band = max(3.0 * sig, 2.0 * res)
-        at = ys >= top - band
+        # noise dips below the band break a long stay at the rim: gaps of a few samples are closed
+        at = binary_closing(ys >= top - band, structure=np.ones(7, bool))
         if at.sum() >= max(min_run, 0.01 * n) and _longest_run(at) >= min_run:
             q = (top - s.offset) / s.gain
             tk = model.tank(s.tank)
@@ -250,6 +251,20 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
         # one simulated signal depends on every tank upstream: all tanks are suspects
         loc.tanks = list(model.tank_names) if loc.flagged else []
     loc.plateaus, loc.sensor_plateaus = _plateaus(model, rec, engine.dt)
+    # a sensor stuck at one value below the range the model gives it is direct evidence,
+    # however few the samples (the equation error can only dilute it over the record)
+    for sname, top in loc.sensor_plateaus.items():
+        s = model.find("sensor", sname)
+        col = s.tank if engine.kind == "equation" else sname
+        if (s.max is None or top < s.max - 1.5 * max(s.resolution, 1e-9)) and col in cols \
+                and col not in loc.flagged:
+            loc.flagged.append(col)
+            y = np.asarray(rec.signals[sname], float)
+            t = np.arange(len(y)) * engine.dt
+            loc.intervals[col] = mask_intervals(y >= top - 1e-9, t, t + engine.dt, gap=0.02 * float(t[-1]))
+            near = [s.tank] + sorted(tanks_touching(model, s.tank) - {s.tank}) if engine.kind == "equation" \
+                else model.tank_names
+            loc.tanks += [u for u in near if u not in loc.tanks]
     loc.signals_present = [s for s in model.signal_names if s in rec.signals]
     for s in model.sensors:
         if s.name in rec.signals:

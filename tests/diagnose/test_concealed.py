@@ -43,3 +43,25 @@ def test_clean_plant_no_alarm(closed_loop_case, nominal):
         d = diagnose(nominal, closed_loop_case("clean", seed))
         assert not d.mismatch, (seed, d.loc.scores)
         assert d.findings == []
+
+
+def test_briefly_stuck_sensor_is_flagged(closed_loop_case, nominal):
+    """A sensor stuck at one value below its range for a few seconds only: diluted over the
+    record the mass balance would not flag it, the plateau itself does."""
+    import numpy as np
+
+    from civic.diagnose.compare import EquationError
+    from civic.diagnose.locate import localise
+    from civic.plant.simulate import Recording
+
+    rec = closed_loop_case("clean")
+    sig = dict(rec.signals)
+    top = np.sort(sig["L1"])[-120]                     # the 120 highest samples clip
+    sig["L1"] = np.minimum(sig["L1"], top)
+    rec2 = Recording(rec.t, sig, rec.fields, "stuck")
+    eng = EquationError(nominal, rec2)
+    R = eng.residuals(nominal)
+    sigma = np.std(R, axis=0)
+    loc = localise(nominal, rec2, eng, R, sigma)
+    assert loc.sensor_plateaus.get("L1") == top and "T1" in loc.flagged and "T1" in loc.tanks
+    assert loc.intervals["T1"] and sum(b - a for a, b in loc.intervals["T1"]) < 60

@@ -493,7 +493,10 @@ def flows(model: PlantModel, volumes, openings, commands, params=None) -> Flows:
                                       cols(commands, len(model.pumps), "commands"), list(P))
 
     def stack(qs):
-        return np.stack([np.broadcast_to(q, (n,)) for q in qs], axis=1) if qs else np.zeros((n, 0))
+        out = np.empty((n, len(qs)))
+        for j, q in enumerate(qs):
+            out[:, j] = q
+        return out
 
     net = stack(net)
     return Flows(stack(qp), stack(ql), net[:, :cm.ntanks], net[:, cm.ntanks])

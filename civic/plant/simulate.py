@@ -212,7 +212,6 @@ class CompiledModel:
     def _emit_rk4(self, emit, ind, h, j, batch):
         m = self.model
         nt = self.ntanks
-        stage_vars = []
         for s in range(4):
             if s == 0:
                 ys = [f"x{i}" for i in range(nt)]

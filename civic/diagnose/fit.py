@@ -301,7 +301,7 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
     loc = localise(model, rec, engine, Rb * sigma, sigma)
     diag = Diagnosis(model, base.model, base.model, engine, loc, base, base, sigma=sigma)
     diag.cal_report = cal.report(base.cal)
-    if not loc.flagged:
+    if not loc.flagged and not loc.suspect:
         diag.mismatch = False
         diag.verdict = "no significant mismatch: the calibrated nominal model explains the recording"
         diag.model_improved = _refit_all(prob, [], base).model
@@ -358,8 +358,12 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
     if progress:
         progress(1, 1, "done")
     diag.final = current
-    diag.mismatch = True
-    if chosen:
+    diag.mismatch = bool(chosen) or bool(loc.flagged)
+    if not diag.mismatch:
+        # only suspect bursts, and nothing in the catalogue explains them on held-out data
+        diag.verdict = "no significant mismatch: the calibrated nominal model explains the recording"
+        diag.model_improved = _refit_all(prob, [], base).model
+    elif chosen:
         final_all = _refit_all(prob, chosen, current)
         diag.model_improved = final_all.model
         diag.final_all = final_all

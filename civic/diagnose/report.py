@@ -179,6 +179,7 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         "localisation": {
             "error": loc.kind,
             "flagged": loc.flagged,
+            "suspect": loc.suspect,
             "scores": {c: {k: round(v, 3) for k, v in s.items()} for c, s in loc.scores.items()},
             "intervals": {c: v for c, v in loc.intervals.items()},
             "regimes": loc.regimes,

@@ -65,3 +65,20 @@ def test_briefly_stuck_sensor_is_flagged(closed_loop_case, nominal):
     loc = localise(nominal, rec2, eng, R, sigma)
     assert loc.sensor_plateaus.get("L1") == top and "T1" in loc.flagged and "T1" in loc.tanks
     assert loc.intervals["T1"] and sum(b - a for a, b in loc.intervals["T1"]) < 60
+
+
+def test_burst_makes_a_suspect_not_a_flag(closed_loop_case, nominal):
+    """One block far off (a mismatch confined to a transient) makes its tank a suspect:
+    candidates are fitted there, but it is no mismatch unless one is significant."""
+    import numpy as np
+
+    from civic.diagnose.compare import EquationError
+    from civic.diagnose.locate import localise
+
+    rec = closed_loop_case("clean")
+    eng = EquationError(nominal, rec)
+    R = np.random.default_rng(0).normal(size=(eng.nwin, 4)) * 0.2
+    R[30:36, 0] += 0.2 * 1.6                      # one block of T1, 1.6 sigma off on average
+    loc = localise(nominal, rec, eng, R, np.full(4, 0.2))
+    assert loc.flagged == [] and loc.suspect == ["T1"] and "T1" in loc.tanks
+    assert loc.intervals["T1"]

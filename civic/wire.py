@@ -138,6 +138,11 @@ def incremental_checksum(csum, old, new):
     return np.where(csum == 0, 0, out).astype(np.uint16)
 
 
+def _u32_at(arr: np.ndarray, positions: np.ndarray, order: str) -> np.ndarray:
+    """The 32-bit unsigned integers at byte positions, in the file's byte order."""
+    return np.ascontiguousarray(arr[positions[:, None] + np.arange(4)]).view(order + "u4").ravel()
+
+
 def _record_offsets(raw: memoryview, order: str, start: int, path: str) -> tuple[np.ndarray, np.ndarray]:
     """Find every record: runs of equal-length records are found vectorized."""
     size = len(raw)
@@ -158,12 +163,7 @@ def _record_offsets(raw: memoryview, order: str, start: int, path: str) -> tuple
         step = 16 + cap
         k = min(look, (size - pos) // step)
         cand = pos + step * np.arange(k, dtype=np.int64)
-        caps = arr[(cand + 8)[:, None] + np.arange(4)]
-        if order == "<":
-            vals = caps[:, 0] | (caps[:, 1].astype(np.uint32) << 8) | (caps[:, 2].astype(np.uint32) << 16) | (caps[:, 3].astype(np.uint32) << 24)
-        else:
-            vals = caps[:, 3] | (caps[:, 2].astype(np.uint32) << 8) | (caps[:, 1].astype(np.uint32) << 16) | (caps[:, 0].astype(np.uint32) << 24)
-        bad = np.flatnonzero(vals != cap)
+        bad = np.flatnonzero(_u32_at(arr, cand + 8, order) != cap)
         good = int(bad[0]) if len(bad) else k
         offsets.append(cand[:good])
         pos += good * step
@@ -171,12 +171,7 @@ def _record_offsets(raw: memoryview, order: str, start: int, path: str) -> tuple
     if not offsets:
         return np.zeros(0, np.int64), np.zeros(0, np.uint32)
     rec = np.concatenate(offsets)
-    caps = arr[(rec + 8)[:, None] + np.arange(4)].astype(np.uint32)
-    if order == "<":
-        caplen = caps[:, 0] | (caps[:, 1] << 8) | (caps[:, 2] << 16) | (caps[:, 3] << 24)
-    else:
-        caplen = caps[:, 3] | (caps[:, 2] << 8) | (caps[:, 1] << 16) | (caps[:, 0] << 24)
-    return rec, caplen.astype(np.uint32)
+    return rec, _u32_at(arr, rec + 8, order)
 
 
 # the first FRAME_LEN bytes of a frame, as big-endian fields at their byte offsets
@@ -258,8 +253,7 @@ def read_pcap(path: str | Path, udp_port: int = DEFAULT_UDP_PORT,
     offset = rec + 16
     messages = decode_frames(data, offset, caplen, udp_port, plant_prefix)
     arr = np.frombuffer(raw, dtype=np.uint8)
-    ts = np.ascontiguousarray(arr[rec[:, None] + np.arange(8)]).view(order + "u4").reshape(-1, 2)
-    messages["t"] = ts[:, 0] + ts[:, 1] / frac
+    messages["t"] = _u32_at(arr, rec, order) + _u32_at(arr, rec + 4, order) / frac
     return Capture(data=data, offset=offset, caplen=caplen, messages=messages, path=path)
 
 def ipv4_checksum(headers: np.ndarray) -> np.ndarray:

@@ -195,20 +195,16 @@ class BandClassifier:
         return int(np.clip(np.trunc(v), SLOPE_MIN, SLOPE_MAX))
 
     def _rows(self) -> np.ndarray:
+        """Per level band, the z-intervals as contiguous raw-slope ranges covering int32."""
+        cuts = [zhi for _, zhi, _ in self.intervals_[:-1]]     # interior boundaries, ascending z
+        classes = [c for _, _, c in self.intervals_]
         rows = []
         for llo, lhi, lc in self._bands():
-            # interval boundaries in raw slope, ascending
-            pieces = []
-            for zlo, zhi, c in self.intervals_:
-                a = SLOPE_MIN if not np.isfinite(zlo) else self._slope_at(zlo, lc)
-                b = SLOPE_MAX if not np.isfinite(zhi) else self._slope_at(zhi, lc)
-                if self.sign_ < 0:
-                    a, b = (SLOPE_MAX if not np.isfinite(zlo) else a), (SLOPE_MIN if not np.isfinite(zhi) else b)
-                pieces.append((min(a, b), max(a, b), c))
-            pieces.sort()
+            bounds, order = [self._slope_at(z, lc) for z in cuts], classes
+            if self.sign_ < 0:          # a larger |slope| is a more negative slope
+                bounds, order = bounds[::-1], order[::-1]
             start = SLOPE_MIN
-            for i, (_, hi, c) in enumerate(pieces):
-                end = SLOPE_MAX if i == len(pieces) - 1 else hi
+            for end, c in zip(bounds + [SLOPE_MAX], order):
                 if end >= start:
                     rows.append([start, end, llo, lhi, c])
                     start = end + 1

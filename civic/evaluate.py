@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -47,6 +48,17 @@ def score(true: np.ndarray, pred: np.ndarray) -> dict:
     return out
 
 
+class ScoredRun(NamedTuple):
+    """One labelled run as the monitor saw it (arrays over its plant messages)."""
+
+    label: str
+    cls: int
+    t: np.ndarray         # s from the run's first message
+    slope: np.ndarray     # mL/s
+    level: np.ndarray     # mL
+    code: np.ndarray      # verdict code of this monitor
+
+
 @dataclass
 class MonitorResult:
     name: str
@@ -54,7 +66,7 @@ class MonitorResult:
     pred: list = field(default_factory=list)
     qualified: int = 0                            # messages whose full window qualified
     delays: dict = field(default_factory=lambda: {c: [] for c in CLASSES})
-    runs: list = field(default_factory=list)      # (label, class, t, slope, level, code) for plots
+    runs: list[ScoredRun] = field(default_factory=list)
 
     def summary(self) -> dict:
         true = np.concatenate(self.true) if self.true else np.zeros(0, int)
@@ -62,7 +74,7 @@ class MonitorResult:
         s = score(true, pred)
         s["coverage"] = len(true) / self.qualified if self.qualified else 0.0
         s["detection_delay_s"] = {NAMES[c]: (float(np.mean(d)) if d else None) for c, d in self.delays.items()}
-        s["undetected_runs"] = sum(1 for r in self.runs if not np.any(r[5] == r[1]))
+        s["undetected_runs"] = sum(1 for r in self.runs if not np.any(r.code == r.cls))
         return s
 
 
@@ -119,8 +131,8 @@ def evaluate(out: str | Path, labels: list[dict], config: MonitorConfig | Entrie
         hit = np.flatnonzero(code == cls)
         if len(start) and len(hit):
             res.delays[cls].append(float(t[hit[0]] - t[start[0]]))
-        res.runs.append((f"{row['file']} {row.get('src_ip', '')}".strip(), cls, t - t[0] if len(t) else t,
-                         tr.slope[sel] * tr.monitor.slope_scale, tr.level[sel], code))
+        res.runs.append(ScoredRun(f"{row['file']} {row.get('src_ip', '')}".strip(), cls, t - t[0] if len(t) else t,
+                                  tr.slope[sel] * tr.monitor.slope_scale, tr.level[sel], code))
     if matched == 0:
         raise CivicError(f"{out}: none of the labelled recordings found there")
     return results
@@ -153,8 +165,8 @@ def plot_monitor(res: MonitorResult, path: Path, entries_monitor=None) -> None:
     ax = axes[1]
     if entries_monitor is not None and len(entries_monitor.classes):
         scale = entries_monitor.slope_scale
-        lv = np.concatenate([r[4][r[5] != 0] for r in res.runs]) if res.runs else np.zeros(1)
-        sv = np.concatenate([r[3][r[5] != 0] for r in res.runs]) if res.runs else np.zeros(1)
+        lv = np.concatenate([r.level[r.code != 0] for r in res.runs])
+        sv = np.concatenate([r.slope[r.code != 0] for r in res.runs])
         lmin, lmax = (lv.min() - 500, lv.max() + 500) if len(lv) else (0, 10000)
         smin, smax = (sv.min() * 1.3, sv.max() * 1.3) if len(sv) else (-1, 1)
         smin, smax = min(smin, smax, 0), max(smin, smax, 0)

@@ -75,6 +75,8 @@ class EquationError:
         self.dt = float(model.dt)
         # short recordings (a 18 s drain test): shorter windows, at least 24 of them
         self.W = max(5, min(int(round(window_s / self.dt)), (n - 1) // 24))
+        # a short record (windows shortened to keep 24 of them): every block is held out once
+        self.short = self.W < int(round(window_s / self.dt))
         self.nwin = (n - 1) // self.W
         if self.nwin < 6:
             raise CivicError(f"{rec.path}: too short for the equation error ({n} samples)")

@@ -43,6 +43,8 @@ class Localisation:
     intervals: dict = field(default_factory=dict)     # column -> [[t0, t1], ...]
     regimes: list[str] = field(default_factory=list)  # human-readable regime findings
     plateaus: dict = field(default_factory=dict)      # tank -> volume of a level plateau at its top
+    at_rim: dict = field(default_factory=dict)        # measured tank -> seconds its level is at/above the rim
+    idle_links: list = field(default_factory=list)    # links whose head never leaves the noise: no flow
     sensor_plateaus: dict = field(default_factory=dict)  # sensor -> exact stuck value at its max
     unmeasured: list[str] = field(default_factory=list)
     max_level: dict = field(default_factory=dict)
@@ -150,6 +152,57 @@ def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict]
     return tanks, sensors
 
 
+RIM_TOL = 0.03     # L: a (smoothed) measured volume this close below the rim counts as at the rim
+
+
+def _rim_masks(model: PlantModel, rec: Recording) -> dict:
+    """Per measured tank with a finite rim: samples where its smoothed volume is at/above the rim."""
+    out = {}
+    for s in model.sensors:
+        if s.name not in rec.signals or not s.gain:
+            continue
+        tk = model.tank(s.tank)
+        rim = tk.rim_volume()
+        if s.tank in out or not np.isfinite(rim):
+            continue
+        y = uniform_filter1d(np.asarray(rec.signals[s.name], float), 5, mode="nearest")
+        q = (y - s.offset) / s.gain
+        v = q * tk.area if s.quantity == "level" else q
+        m = v >= rim - max(RIM_TOL, 0.003 * rim)
+        if m.sum() >= 5:
+            out[s.tank] = m
+    return out
+
+
+def _idle_links(model: PlantModel, rec: Recording) -> list[str]:
+    """Links between measured tanks that carry no flow the record can see: the driving head
+    (smoothed over 2.5 s) stays within 3 noise sigmas of zero in 95 % of the samples, or the
+    link's valve is never commanded open. Their coefficient cannot be estimated (a fit
+    would only shape the noise rectified through the flow law)."""
+    vol = {}
+    for s in model.sensors:
+        if s.name in rec.signals and s.gain and s.tank not in vol:
+            tk = model.tank(s.tank)
+            q = (np.asarray(rec.signals[s.name], float) - s.offset) / s.gain
+            vol[s.tank] = q if s.quantity == "level" else q / tk.area      # level, dm
+    out = []
+    for lk in model.links:
+        if lk.valve is not None:
+            v = model.find("valve", lk.valve)
+            if v.input in rec.signals and np.max(np.asarray(rec.signals[v.input], float)) <= 0.0:
+                out.append(lk.name)
+                continue
+        if lk.from_ not in vol or (lk.to not in vol and lk.law == "bidirectional"):
+            continue
+        head = vol[lk.from_] - (vol[lk.to] if lk.law == "bidirectional" else lk.min_level)
+        if lk.law != "bidirectional" and np.quantile(head, 0.95) > 0:
+            continue           # an orifice above its outlet: flows whenever the tank holds water
+        sig = noise_sigma(head)
+        if np.quantile(np.abs(uniform_filter1d(head, 25, mode="nearest")), 0.95) < 3.0 * sig:
+            out.append(lk.name)
+    return out
+
+
 def _longest_run(mask: np.ndarray) -> int:
     best = cur = 0
     for v in mask:
@@ -189,6 +242,9 @@ def _regimes(model: PlantModel, rec: Recording, R: np.ndarray, sigma: np.ndarray
     for v in model.valves:
         u = np.asarray(rec.signals[v.input], float)
         feats[f"{v.name} nearly closed"] = (-window_mean(u), "closed")
+    for tank, m in _rim_masks(model, rec).items():
+        # the level at/above the rim (the spill regime) in any part of the window
+        feats[f"while {tank} is at/above its rim"] = (window_max(m.astype(float)), "rim")
     out = []
     for c in flagged:
         j = columns.index(c)
@@ -205,6 +261,8 @@ def _regimes(model: PlantModel, rec: Recording, R: np.ndarray, sigma: np.ndarray
                 splits = [(f > 0.2, "")]
             elif kind == "closed":
                 splits = [(f > -0.1, "")]
+            elif kind == "rim":
+                splits = [(f > 0.5, "")]
             else:
                 splits = [(f > np.quantile(f, q), f" {np.quantile(f, q):.3g}") for q in qs]
             for mask, thr in splits:
@@ -260,6 +318,8 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
         # one simulated signal depends on every tank upstream: all tanks are suspects
         loc.tanks = list(model.tank_names) if loc.flagged else []
     loc.plateaus, loc.sensor_plateaus = _plateaus(model, rec, engine.dt)
+    loc.idle_links = _idle_links(model, rec)
+    loc.at_rim = {t: round(float(m.sum()) * engine.dt, 3) for t, m in _rim_masks(model, rec).items()}
     # a sensor stuck at one value below the range the model gives it is direct evidence,
     # however few the samples (the equation error can only dilute it over the record)
     for sname, top in loc.sensor_plateaus.items():

@@ -183,6 +183,7 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
             "scores": {c: {k: round(v, 3) for k, v in s.items()} for c, s in loc.scores.items()},
             "intervals": {c: v for c, v in loc.intervals.items()},
             "regimes": loc.regimes,
+            "at_rim_s": loc.at_rim,
             "limits_reached": _limits_reached(diag, rec),
         },
         "candidates": [{"candidate": t["candidate"], "heldout_dbic": round(t["dbic"], 2),

@@ -3,14 +3,14 @@ from .base import Mechanism
 from .coefficient import Coefficient, coefficient_paths
 from .dead_time import DeadTime
 from .leak import Leak
-from .overflow import Overflow
+from .overflow import Overflow, Spill
 from .pump_head import PumpHead
 from .sensor_offset import SensorOffset
 from .sensor_saturation import SensorSaturation
 from .valve_characteristic import ValveCharacteristic
 
-CATALOGUE = (Leak, DeadTime, ValveCharacteristic, PumpHead, Overflow, SensorOffset, SensorSaturation,
-             Coefficient)
+CATALOGUE = (Leak, DeadTime, ValveCharacteristic, PumpHead, Overflow, Spill, SensorOffset,
+             SensorSaturation, Coefficient)
 
-__all__ = ["Mechanism", "CATALOGUE", "Leak", "DeadTime", "ValveCharacteristic", "PumpHead", "Overflow",
+__all__ = ["Mechanism", "CATALOGUE", "Leak", "DeadTime", "ValveCharacteristic", "PumpHead", "Overflow", "Spill",
            "SensorOffset", "SensorSaturation", "Coefficient", "coefficient_paths"]

@@ -31,7 +31,10 @@ class Coefficient(Mechanism):
     @classmethod
     def candidates(cls, model, loc):
         out = []
+        idle = set(getattr(loc, "idle_links", ()))
         for comp, path in coefficient_paths(model, loc.tanks):
+            if path.startswith("link.") and comp in idle:
+                continue   # no flow through it in this record: its coefficient is not identifiable
             nominal = float(model.get(path))
             if nominal > 0:
                 out.append(cls(comp, {"factor": 1.0}, {"factor": (0.3, 3.0)},

@@ -6,7 +6,9 @@ Cascaded Tanks' upper tank over the lower one), the spill may also be split: a
 """
 from __future__ import annotations
 
-from civic.plant.model import OUTSIDE, Overflow as OverflowSpec
+import numpy as np
+
+from civic.plant.model import OUTSIDE, Link, Overflow as OverflowSpec
 
 from .base import Mechanism, lower_tanks
 
@@ -73,3 +75,72 @@ class Overflow(Mechanism):
             return (f"{self.component} spills above {p['volume']:.4g} L: {100 * p['fraction']:.0f} % into "
                     f"{p['to']}, the rest to {p['rest']}")
         return f"{self.component} spills above {p['volume']:.4g} L into {p['to']}"
+
+
+SPILL_HEADROOM = 0.05   # the instant overflow moves this fraction of the rim volume up
+
+
+class Spill(Overflow):
+    """A finite spill over the rim: q = c*(h - h_rim)**n to the overflow's destination.
+
+    The datasheet overflow is instantaneous (the level never exceeds the rim). A real
+    weir needs a head above its crest to pass a flow: the level sits above the rim by
+    (q_in / c)**(1/n). Expressed with the existing schema, mass exact: an orifice link
+    `{from=tank, to=dest, law="orifice", min_level=rim level, coeff=c, exponent=n}` and
+    the instant overflow moved `SPILL_HEADROOM` x the rim volume up (the wall above the
+    crest: still a hard top, reached only if c is far too small for the inflow). The
+    rim stays the model's (a reference, not counted); c is fitted, n fixed at 1 (one
+    inflow level in a record cannot separate n from c). Candidate for a measured tank
+    whose level reaches the rim (at or above it).
+    """
+
+    counted = False
+    hidden = ("rim_level", "exponent")
+
+    def edit(self, model, p):
+        tk = model.tank(self.component)
+        rim_level = float(p["rim_level"])
+        name = f"spill_{self.component}"
+        while any(lk.name == name for lk in model.links):
+            name += "_"
+        model.links.append(Link(name=name, from_=self.component, to=p["to"], coeff=float(p["c"]),
+                                law="orifice", exponent=float(p.get("exponent", 1.0)),
+                                min_level=rim_level))
+        tk.overflow = OverflowSpec(to=tk.overflow.to, volume=rim_level * tk.area * (1 + SPILL_HEADROOM),
+                                   fraction=tk.overflow.fraction, rest=tk.overflow.rest)
+
+    @property
+    def label(self) -> str:
+        return f"{self.name}({self.component}->{self.fixed['to']}, finite spill)"
+
+    def values(self, theta=None) -> dict:
+        out = super().values(theta)
+        out["rim_level"] = self.fixed["rim_level"]
+        out["exponent"] = self.fixed.get("exponent", 1.0)
+        return out
+
+    def report_parameters(self, theta=None) -> dict:
+        p = super().report_parameters(theta)
+        return {"c": p["c"], "rim_level": p["rim_level"], "exponent": p["exponent"], "to": p["to"]}
+
+    @classmethod
+    def candidates(cls, model, loc):
+        out = []
+        measured = {model.find("sensor", s).tank for s in loc.signals_present}
+        for tk in model.tanks:
+            o = tk.overflow
+            if tk.name not in measured or tk.name not in loc.tanks or o is None or o.fraction < 1.0:
+                continue
+            rim = tk.rim_volume()
+            if not np.isfinite(rim) or tk.name not in loc.at_rim:
+                continue
+            if any(lk.from_ == tk.name and lk.law == "orifice" and lk.min_level > 0 for lk in model.links):
+                continue   # a spill link already there: its coefficient is a `coefficient` finding
+            cmax = 100.0 * max([lk.coeff for lk in model.links] + [p.gain for p in model.pumps] + [0.1])
+            out.append(cls(tk.name, {"c": 0.1 * cmax}, {"c": (1e-3 * cmax, cmax)},
+                           {"to": o.to, "rim_level": rim / tk.area, "exponent": 1.0}))
+        return out
+
+    def describe(self, p):
+        return (f"{self.component} spills to {p['to']} as q = {p['c']:.4g}*(h - {p['rim_level']:.4g} dm)"
+                f"^{p['exponent']:.3g} (finite, not instantaneous)")

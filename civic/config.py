@@ -1,11 +1,11 @@
 """Monitor configuration (`configs/monitors.toml`): what to watch, not how to classify."""
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from civic.errors import CivicError
+from civic.files import read_toml
 from civic.wire import DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, MAX_MONITORS, SIGNALS, parse_prefix
 
 LEVEL_SIGNALS = ("l1", "l2", "l3", "l4")
@@ -101,12 +101,7 @@ def parse_common(raw: dict, what: str) -> tuple[int, str]:
 def load_monitors(path: str | Path | None = None) -> MonitorConfig:
     """Read and validate a monitors TOML file; errors name the offending key."""
     path = Path(path) if path else DEFAULT_MONITORS
-    try:
-        raw = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise CivicError(f"cannot read {path}: {exc.strerror}") from exc
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise CivicError(f"{path}: invalid TOML: {exc}") from exc
+    raw = read_toml(path)
     port, prefix = parse_common(raw, str(path))
     items = raw.get("monitor")
     if not isinstance(items, list):

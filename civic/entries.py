@@ -13,6 +13,7 @@ import numpy as np
 from civic.config import (Monitor, check_int, check_monitor_list, check_range, parse_common,
                           parse_monitor)
 from civic.errors import CivicError
+from civic.files import read_json
 from civic.wire import CLASS_CODES
 
 FORMAT = "civic-entries/1"
@@ -137,12 +138,4 @@ def parse_entries(raw, what: str) -> Entries:
 
 def load_entries(path: str | Path) -> Entries:
     """Read and validate an entries JSON file; errors are one line naming the key."""
-    try:
-        text = Path(path).read_text()
-    except OSError as exc:
-        raise CivicError(f"cannot read {path}: {exc.strerror}") from exc
-    try:
-        raw = json.loads(text)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CivicError(f"{path}: invalid JSON: {exc}") from exc
-    return parse_entries(raw, str(path))
+    return parse_entries(read_json(path), str(path))

@@ -47,6 +47,8 @@ def read_labels(path: str | Path) -> list[dict]:
             rows = list(csv.DictReader(fh))
     except OSError as exc:
         raise CivicError(f"cannot read labels {path}: {exc.strerror}") from exc
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise CivicError(f"{path}: not a labels CSV ({exc})") from exc
     if not rows:
         raise CivicError(f"{path}: no label rows")
     for col in ("file", "monitor", "class"):

@@ -143,17 +143,10 @@ class _progress:
 
 
 def _load_schedule(path: str):
-    import json
-
+    from civic.files import read_json
     from civic.plant.control import schedule_from_operation
 
-    try:
-        with open(path) as fh:
-            truth = json.load(fh)
-    except OSError as exc:
-        raise CivicError(f"cannot read {path}: {exc.strerror}") from exc
-    except json.JSONDecodeError as exc:
-        raise CivicError(f"{path}: bad JSON: {exc}") from exc
+    truth = read_json(path)
     if not isinstance(truth, dict) or "operation" not in truth:
         raise CivicError(f"{path}: no 'operation' list")
     return schedule_from_operation(truth["operation"]), truth.get("duration_s")

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import copy
 import math
-import tomllib
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 
 from civic.errors import CivicError
+from civic.files import read_toml
 
 OUTSIDE = "outside"
 LAWS = ("orifice", "bidirectional")
@@ -218,15 +218,7 @@ class PlantModel:
 
     @classmethod
     def from_toml(cls, path: str | Path) -> "PlantModel":
-        try:
-            text = Path(path).read_text()
-        except OSError as exc:
-            raise CivicError(f"cannot read model {path}: {exc.strerror}") from exc
-        try:
-            d = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise CivicError(f"{path}: bad TOML: {exc}") from exc
-        return cls.from_dict(d, where=str(path))
+        return cls.from_dict(read_toml(path, "model "), where=str(path))
 
     def to_dict(self) -> dict:
         d = {"model": {"name": self.name, "dt": self.dt, "substeps": self.substeps},
@@ -381,7 +373,6 @@ class PlantModel:
 
     def _overflow_order(self, where: str = "model") -> list[int]:
         """Tank indices ordered so that a tank spills before the tank it spills into."""
-        idx = {t.name: i for i, t in enumerate(self.tanks)}
         order, state = [], {}
 
         def visit(i, depth=0):

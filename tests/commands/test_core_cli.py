@@ -86,6 +86,8 @@ def bad_entries(tmp_path, entries_path, mutate):
     ("labels", "cannot read labels"),
     ("labels_col", "missing column"),
     ("nofile", "cannot read"),
+    ("binary_entries", "not a text file"),
+    ("binary_labels", "not a labels CSV"),
 ])
 def test_bad_input_one_line_error(capsys, entries_path, tmp_path, case, expect):
     pcap = TRAINING / "drain_v075_normal_r1.pcap"
@@ -113,6 +115,12 @@ def test_bad_input_one_line_error(capsys, entries_path, tmp_path, case, expect):
         args = ["evaluate", TRAINING, "--labels", tmp_path / "l.csv"]
     elif case == "nofile":
         args[1] = tmp_path / "absent.pcap"
+    elif case == "binary_entries":
+        (tmp_path / "b.json").write_bytes(b"\xff\xfe\x00binary")
+        args[-1] = tmp_path / "b.json"
+    elif case == "binary_labels":
+        (tmp_path / "b.csv").write_bytes(b"\xff\xfe\x00binary")
+        args = ["evaluate", TRAINING, "--labels", tmp_path / "b.csv"]
     code, out, err = civic(capsys, *args)
     assert code == 2
     assert expect in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err

@@ -219,7 +219,6 @@ def _regimes(model: PlantModel, rec: Recording, R: np.ndarray, sigma: np.ndarray
     t = np.arange(len(rec.t)) * dt
     rows_k0 = np.clip(np.searchsorted(t, times[:, 0]), 0, len(t) - 1)
     rows_k1 = np.clip(np.searchsorted(t, times[:, 1]), 1, len(t))
-    cum = {}
 
     def window_mean(x):
         c = np.concatenate(([0.0], np.cumsum(x)))

@@ -118,7 +118,6 @@ class CompiledModel:
 
     # ---- code generation --------------------------------------------------------------
     def _source(self, batch: bool) -> str:
-        m = self.model
         nt, nv = self.ntanks, self.nvalves
         L = []
         emit = L.append
@@ -210,7 +209,6 @@ class CompiledModel:
                 emit(f"{ind}NV{i} = {v['n']}")
 
     def _emit_rk4(self, emit, ind, h, j, batch):
-        m = self.model
         nt = self.ntanks
         for s in range(4):
             if s == 0:

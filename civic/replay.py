@@ -11,9 +11,10 @@ from civic.pipeline import SwitchModel
 from civic.wire import Capture, read_pcap
 
 
-def replay_model(capture: Capture, entries: Entries) -> np.ndarray:
-    """Verdicts of a freshly reset software switch for every frame of a capture."""
-    return SwitchModel(entries).run(capture.messages)
+def with_verdict(capture: Capture) -> int:
+    """How many plant messages of a capture carry a verdict."""
+    msgs = capture.messages
+    return int(np.count_nonzero(msgs["verdict"][msgs["plant"]]))
 
 
 def replay_files(inputs: list[Path], outputs: list[Path], entries: Entries, entries_path: str,
@@ -25,14 +26,14 @@ def replay_files(inputs: list[Path], outputs: list[Path], entries: Entries, entr
         task = progress.add_task("replaying", total=len(inputs))
         for src, dst in zip(inputs, outputs):
             cap = read_pcap(src, entries.udp_port, entries.plant_prefix)
-            if target == "model":
-                cap.set_verdicts(replay_model(cap, entries))
-                cap.write(dst)
-            else:
-                captures.append((cap, dst))
             stats["frames"] += len(cap)
             stats["plant"] += int(cap.messages["plant"].sum())
-            stats["evaluated"] += int(np.count_nonzero(cap.messages["verdict"][cap.messages["plant"]]))
+            if target == "model":  # a freshly reset software switch per input
+                cap.set_verdicts(SwitchModel(entries).run(cap.messages))
+                cap.write(dst)
+                stats["evaluated"] += with_verdict(cap)
+            else:
+                captures.append((cap, dst))
             progress.advance(task)
     if target == "bmv2":
         stats["evaluated"], stats["missing"] = replay_on_bmv2(captures, entries_path, pipeline)
@@ -47,7 +48,6 @@ def replay_on_bmv2(captures: list[tuple[Capture, Path]], entries_path: str, pipe
     evaluated = missing = 0
     for (_, dst), res in zip(captures, results):
         res.capture.write(dst)
-        msgs = res.capture.messages
-        evaluated += int(np.count_nonzero(msgs["verdict"][msgs["plant"]]))
+        evaluated += with_verdict(res.capture)
         missing += len(res.missing)
     return evaluated, missing

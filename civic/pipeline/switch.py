@@ -80,8 +80,11 @@ class SwitchModel:
         idx = np.flatnonzero(plant)
         msgs = messages if len(idx) == len(messages) else messages[idx]
         # each plant's messages as one contiguous stretch: sort by slot once, unsort at the end
-        order = np.argsort(plant_lookup.plant_slot(msgs["src"]), kind="stable")
-        slot = plant_lookup.plant_slot(msgs["src"])[order]
+        slots = plant_lookup.plant_slot(msgs["src"])
+        order = np.argsort(slots, kind="stable")
+        unsort = np.empty_like(order)
+        unsort[order] = np.arange(len(order))
+        slot = slots[order]
         cuts = np.concatenate(([0], np.flatnonzero(np.diff(slot)) + 1, [len(order)]))
         spans = [slice(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
         seq = msgs["seq"][order]
@@ -100,8 +103,6 @@ class SwitchModel:
             code = np.zeros(len(order), dtype=np.int64)
             ev = run >= mon.window
             code[ev] = classification.classify(s[ev], x[ev], mon.classes, mon.default_class)
-            unsort = np.empty_like(order)
-            unsort[order] = np.arange(len(order))
             traces.append(MonitorTrace(monitor=mon, run=run[unsort], slope=s[unsort], level=x[unsort],
                                        code=code[unsort]))
         return idx, traces

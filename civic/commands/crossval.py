@@ -87,31 +87,23 @@ def simulated_scores(runs: dict, config, model_path: str | None) -> dict:
         table.add_column(f"{n} (sim)", justify="right")
     for n in names:
         table.add_column(f"{n} (recordings)", justify="right")
+    def scored(clf, held_runs, name):
+        held = [r for r in held_runs if r.monitor == name and len(r.slope)]
+        return score(np.concatenate([np.full(len(r.slope), r.cls) for r in held]),
+                     np.concatenate([clf.predict(r.slope, r.level) for r in held]))
+
     out = {}
     for label, train_runs, est, banded in sources:
-        cells = []
-        for mon in config.monitors:
-            if mon.name not in names:
-                continue
+        sim_cells, real_cells = [], []
+        for mon in (m for m in config.monitors if m.name in names):
             _, clf = fit_monitor(mon, train_runs, est, banded)
-            held = [r for r in evals[est] if r.monitor == mon.name and len(r.slope)]
-            true = np.concatenate([np.full(len(r.slope), r.cls) for r in held])
-            pred = np.concatenate([clf.predict(r.slope, r.level) for r in held])
-            s = score(true, pred)
-            out.setdefault(label, {})[mon.name] = s
-            cells.append(f"{s['macro_f1']:.3f}")
-        for mon in config.monitors:
-            if mon.name not in names:
-                continue
+            s = out.setdefault(label, {})[mon.name] = scored(clf, evals[est], mon.name)
+            sim_cells.append(f"{s['macro_f1']:.3f}")
             if train_runs is from_model:  # model-only tables meet the real recordings
-                _, clf = fit_monitor(mon, from_model, est, banded)
-                real = [r for r in runs[est] if r.monitor == mon.name and len(r.slope)]
-                s = score(np.concatenate([np.full(len(r.slope), r.cls) for r in real]),
-                          np.concatenate([clf.predict(r.slope, r.level) for r in real]))
-                out[label][mon.name + "_on_recordings"] = s
-                cells.append(f"{s['macro_f1']:.3f}")
+                s = out[label][mon.name + "_on_recordings"] = scored(clf, runs[est], mon.name)
+                real_cells.append(f"{s['macro_f1']:.3f}")
             else:
-                cells.append("see LORO")
-        table.add_row(label, *cells)
+                real_cells.append("see LORO")
+        table.add_row(label, *sim_cells, *real_cells)
     console.print(table)
     return out

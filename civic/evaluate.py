@@ -17,7 +17,7 @@ from civic.config import MonitorConfig
 from civic.entries import Entries
 from civic.errors import CivicError
 from civic.pipeline import SwitchModel
-from civic.train import NAMES, monitor_entries
+from civic.train import NAMES, probe_entries
 from civic.wire import CLASS_CODES, ip_to_int, monitor_verdict, read_pcap
 
 CLASSES = (1, 2, 3)
@@ -94,12 +94,7 @@ def evaluate(out: str | Path, labels: list[dict], config: MonitorConfig | Entrie
     single = out.is_file() and len(files) == 1
     monitors = config.monitors
     names = [m.name for m in monitors]
-    estimator = "lsq"
-    if isinstance(config, Entries):
-        probe = config
-    else:
-        probe = Entries(monitors=[monitor_entries(m, estimator) for m in monitors],
-                        udp_port=config.udp_port, plant_prefix=config.plant_prefix)
+    probe = config if isinstance(config, Entries) else probe_entries(config, "lsq")
     results = {n: MonitorResult(n) for n in names}
     cache = {}
     matched = 0

@@ -67,12 +67,17 @@ def monitor_entries(mon: Monitor, estimator: str, rows=None, default_class=3) ->
                           default_class=default_class, classes=table)
 
 
+def probe_entries(config: MonitorConfig, estimator: str) -> Entries:
+    """Entries with empty class tables: the switch computes runs and slopes, every verdict says error."""
+    return Entries(monitors=[monitor_entries(m, estimator) for m in config.monitors],
+                   udp_port=config.udp_port, plant_prefix=config.plant_prefix)
+
+
 def collect_runs(folder: str | Path, labels: list[dict], config: MonitorConfig, estimator: str) -> list[Run]:
     """Run the switch model over every labelled recording and keep the evaluated windows."""
     folder = Path(folder)
     names = [m.name for m in config.monitors]
-    entries = Entries(monitors=[monitor_entries(m, estimator) for m in config.monitors],
-                      udp_port=config.udp_port, plant_prefix=config.plant_prefix)
+    entries = probe_entries(config, estimator)
     runs, cache = [], {}
     for row in labels:
         if row["monitor"] not in names:

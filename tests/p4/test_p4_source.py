@@ -459,3 +459,104 @@ def test_tna_names():
     for obj in ("table config", "action set_config", "table precondition", "action qualify",
                 "table classify", "action set_class"):
         assert re.search(rf"\b{obj}\b", src), obj
+
+
+# ---------------------------------------------------------------- the P4Info fixture, table by table
+V1_FIELD_ROOTS = {"hdr": "headers_t", "msg": "plant_msg_t", "m": "monitor_md_t", "meta": "local_metadata_t"}
+V1MODEL_STANDARD_METADATA = {"ingress_port": 9, "egress_spec": 9, "egress_port": 9}   # p4include/v1model.p4
+TYPEDEF_WIDTHS = {"mac_addr_t": 48, "ipv4_addr_t": 32}
+
+
+def p4_types(src: str) -> dict[str, dict[str, str]]:
+    """struct / header name -> {field: type} of the program."""
+    out = {}
+    for m in re.finditer(r"\b(?:struct|header)\s+(\w+)\s*\{([^}]*)\}", src):
+        out[m.group(1)] = dict((f, t) for t, f in re.findall(r"(bit<\d+>|\w+)\s+(\w+)\s*;", m.group(2)))
+    return out
+
+
+def key_width(expr: str, types: dict) -> int:
+    parts = expr.split(".")
+    if parts[0] == "standard_metadata":
+        return V1MODEL_STANDARD_METADATA[parts[1]]
+    typ = V1_FIELD_ROOTS[parts[0]]
+    for p in parts[1:]:
+        typ = types[typ][p]
+    return int(typ[4:-1]) if typ.startswith("bit<") else TYPEDEF_WIDTHS[typ]
+
+
+def derived_tables(src: str, top: str = "CivicIngress") -> dict[str, dict]:
+    """P4Info name -> {keys: [(name, kind, width)], actions: [(P4Info name, defaultonly)], default, args}
+    of every table reachable from `top`, with action names resolved as derived_names does."""
+    bodies = control_bodies(src)
+    types = p4_types(src)
+    out: dict[str, dict] = {}
+
+    def full(anno, local, prefix):
+        name = anno or local
+        return name[1:] if name.startswith(".") else f"{prefix}.{name}"
+
+    def walk(ctl: str, prefix: str) -> None:
+        body = bodies[ctl]
+        actions = {m.group(2): full(m.group(1), m.group(2), prefix)
+                   for m in re.finditer(r'(?:@name\(\s*"([^"]+)"\s*\)\s*)?action\s+(\w+)\s*\(', body)}
+        actions["NoAction"] = "NoAction"
+        for m in re.finditer(r'(?:@name\(\s*"([^"]+)"\s*\)\s*)?table\s+(\w+)\s*\{', body):
+            i, depth = m.end(), 1
+            while depth:
+                depth += {"{": 1, "}": -1}.get(body[i], 0)
+                i += 1
+            tbody = body[m.end():i - 1]
+            key = re.search(r"\bkey\s*=\s*\{([^}]*)\}", tbody)
+            keys = [(n, kind.upper(), key_width(e, types)) for e, kind, n in
+                    re.findall(r'([\w.]+)\s*:\s*(\w+)\s+@name\("([^"]+)"\)', key.group(1) if key else "")]
+            acts = re.search(r"\bactions\s*=\s*\{([^}]*)\}", tbody).group(1)
+            refs = [(actions[a], bool(d)) for d, a in re.findall(r"(@defaultonly\s+)?(\w+)\s*(?:\(\s*\))?\s*;", acts)]
+            dflt = re.search(r"\bdefault_action\s*=\s*(\w+)\s*\(([^)]*)\)", tbody)
+            assert not re.search(r"\bconst\s+default_action", tbody), "const default actions: see the fixture"
+            args = [int(a, 0) if re.fullmatch(r"\d+|0x[0-9a-fA-F]+", a.strip()) else defines()[a.strip()]
+                    for a in dflt.group(2).split(",") if a.strip()]
+            out[full(m.group(1), m.group(2), prefix)] = {"keys": keys, "actions": refs,
+                                                         "default": actions[dflt.group(1)], "args": args}
+        for m in INSTANCE.finditer(top_level_decls(body)):
+            anno, typ, _, inst = m.groups()
+            if typ in bodies:
+                walk(typ, f"{prefix}.{anno or inst}")
+
+    walk(top, top)
+    return out
+
+
+def test_fixture_p4info_tables_match_the_program():
+    """Keys (name, match kind, width), action refs and their @defaultonly scope, and initial default
+    actions of the fixture are what p4c derives from the v1model program; aliases are unique and
+    ids carry the P4Runtime type prefix (p4info/p4ids.h: action 0x01, table 0x02, register 0x16)."""
+    from p4.config.v1 import p4info_pb2
+
+    schema = p4runtime.P4Schema.from_text((ROOT / "tests/fixtures/civic.p4info.txtpb").read_text())
+    info = schema.p4info
+    tables = derived_tables(source(V1 / "civic.p4"))
+    assert set(tables) == set(schema.tables)
+    for t in info.tables:
+        want = tables[t.preamble.name]
+        assert [(f.name, p4info_pb2.MatchField.MatchType.Name(f.match_type), f.bitwidth)
+                for f in t.match_fields] == want["keys"], t.preamble.name
+        assert [f.id for f in t.match_fields] == list(range(1, len(t.match_fields) + 1))
+        refs = [(schema.action_by_id[r.id].name, r.scope == p4info_pb2.ActionRef.DEFAULT_ONLY) for r in t.action_refs]
+        assert refs == want["actions"], t.preamble.name
+        for r in t.action_refs:
+            assert (r.scope == p4info_pb2.ActionRef.DEFAULT_ONLY) == ("@defaultonly" in r.annotations)
+        assert not t.const_default_action_id, t.preamble.name
+        init = t.initial_default_action
+        assert schema.action_by_id[init.action_id].name == want["default"], t.preamble.name
+        assert [p4runtime.decode_value(a.value) for a in init.arguments] == want["args"], t.preamble.name
+    used = {a for t in tables.values() for a, _ in t["actions"]}
+    assert set(schema.actions) == used, "P4Info lists exactly the actions some table references"
+    objs = [(0x02, t.preamble) for t in info.tables] + [(0x01, a.preamble) for a in info.actions] + \
+        [(0x16, r.preamble) for r in info.registers]
+    for prefix, pre in objs:
+        assert pre.id >> 24 == prefix, pre.name
+        assert pre.name == pre.alias or pre.name.endswith("." + pre.alias), pre.name
+    aliases = [pre.alias for _, pre in objs]
+    assert len(aliases) == len(set(aliases)), "p4c gives every object a unique alias"
+    assert len({pre.id for _, pre in objs}) == len(objs)

@@ -560,3 +560,37 @@ def test_fixture_p4info_tables_match_the_program():
     aliases = [pre.alias for _, pre in objs]
     assert len(aliases) == len(set(aliases)), "p4c gives every object a unique alias"
     assert len({pre.id for _, pre in objs}) == len(objs)
+
+
+def p4info_summary(schema: p4runtime.P4Schema) -> dict:
+    """Everything of a P4Info that civic configure and the fixture depend on, ids left out."""
+    from p4.config.v1 import p4info_pb2
+
+    aname = {a.id: a.name for a in schema.actions.values()}
+    out = {}
+    for t in schema.p4info.tables:
+        out[("table", t.preamble.name)] = (
+            [(f.name, p4info_pb2.MatchField.MatchType.Name(f.match_type), f.bitwidth) for f in t.match_fields],
+            sorted((aname[r.id], p4info_pb2.ActionRef.Scope.Name(r.scope)) for r in t.action_refs),
+            int(t.size), aname.get(t.const_default_action_id),
+            aname.get(t.initial_default_action.action_id) if t.HasField("initial_default_action") else None)
+    for a in schema.p4info.actions:
+        out[("action", a.preamble.name)] = [(p.name, p.bitwidth) for p in a.params]
+    for r in schema.p4info.registers:
+        out[("register", r.preamble.name)] = (r.type_spec.bitstring.bit.bitwidth, int(r.size))
+    return out
+
+
+def test_built_p4info_matches_fixture():
+    """After `make p4` (p4c-bm2-ss), the real P4Info must say what the fixture says (ids aside).
+    Skipped where nothing was compiled; CIVIC_P4INFO=path points it at another build."""
+    import os
+
+    built = Path(os.environ.get("CIVIC_P4INFO", ROOT / "build/v1model/civic.p4info.txtpb"))
+    if not built.is_file():
+        pytest.skip(f"no compiled P4Info at {built} (run make p4)")
+    have = p4info_summary(p4runtime.P4Schema.from_text(built.read_text(), str(built)))
+    want = p4info_summary(p4runtime.P4Schema.from_text((ROOT / "tests/fixtures/civic.p4info.txtpb").read_text()))
+    assert sorted(have) == sorted(want)
+    for k in want:
+        assert have[k] == want[k], k

@@ -27,7 +27,7 @@ from scipy.optimize import least_squares
 from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording
 
-from .compare import EquationError, SimulationError, fully_measured
+from .compare import INVENTORY, INVENTORY_SPREAD, EquationError, SimulationError, fully_measured
 from .locate import Localisation, localise, noise_sigma, robust_sigma
 from .mechanisms import CATALOGUE, Mechanism, coefficient_paths
 
@@ -44,7 +44,7 @@ def fast_copy(model: PlantModel) -> PlantModel:
         if getattr(y, "overflow", None) is not None:
             y.overflow = _copy.copy(y.overflow)
         return y
-    return PlantModel(model.name, model.dt, model.substeps, [cp(x) for x in model.inputs],
+    return PlantModel(model.name, model.dt, model.substeps, model.total_volume, [cp(x) for x in model.inputs],
                       [cp(x) for x in model.tanks], [cp(x) for x in model.pumps],
                       [cp(x) for x in model.valves], [cp(x) for x in model.links],
                       [cp(x) for x in model.sensors])
@@ -302,6 +302,9 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
                           for j in range(R0.shape[1])])
         # the residual spread cannot be below what sensor noise alone gives
         sigma = np.maximum(sigma, 1e-6)
+        if INVENTORY in engine.columns:
+            # the inventory's spread is how well the fill is known, not its (tiny) noise
+            sigma[engine.columns.index(INVENTORY)] = INVENTORY_SPREAD * model.total_volume
     else:
         sigma = np.array([max(noise_sigma(engine.Y[:, j]), 1e-3 * (np.ptp(engine.Y[:, j]) or 1.0))
                           for j in range(engine.Y.shape[1])])

@@ -23,6 +23,7 @@ from scipy.ndimage import binary_closing, uniform_filter1d
 from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording
 
+from .compare import INVENTORY
 from .mechanisms.base import tanks_touching
 
 BLOCK = 6          # rows averaged per block in the lack-of-fit statistic
@@ -65,6 +66,12 @@ def robust_sigma(x: np.ndarray) -> float:
     if x.size == 0:
         return 1.0
     return float(1.4826 * np.median(np.abs(x - np.median(x)))) or float(np.std(x)) or 1e-9
+
+
+def median_nonzero(r: np.ndarray) -> float:
+    """Median of the rows that carry information (0 marks a row without any)."""
+    used = r[r != 0.0]
+    return float(np.median(used)) if used.size else 0.0
 
 
 def noise_sigma(x: np.ndarray) -> float:
@@ -288,13 +295,20 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
     nb = max(1, R.shape[0] // BLOCK)
     bar = FLAG_RATIO * max(1.0, (chi2.ppf(0.999, nb) / nb) / (chi2.ppf(0.999, 20) / 20))
     for c, s in loc.scores.items():
-        if s["ratio"] > bar or abs(s["z"]) > FLAG_Z:
+        if c == INVENTORY:
+            # one number repeated, not independent rows: flagged when the measured total sits
+            # outside the fill's spread (its sigma), whatever the number of windows
+            j = cols.index(c)
+            if abs(median_nonzero(R[:, j])) > sigma[j]:
+                loc.flagged.append(c)
+        elif s["ratio"] > bar or abs(s["z"]) > FLAG_Z:
             loc.flagged.append(c)
     loc.flagged.sort(key=lambda c: -loc.scores[c]["ratio"])
     if engine.kind == "equation":
         # a mismatch confined to a few transients (a dead time after steps) barely moves the
         # record-wide ratio; the peak block points at it, the held-out selection decides
-        loc.suspect = sorted((c for c, s in loc.scores.items() if c not in loc.flagged and s["peak"] > SCAN_MAX),
+        loc.suspect = sorted((c for c, s in loc.scores.items()
+                              if c not in loc.flagged and c != INVENTORY and s["peak"] > SCAN_MAX),
                              key=lambda c: -loc.scores[c]["peak"])
     for j, c in enumerate(cols):
         if c in loc.flagged or c in loc.suspect:
@@ -307,6 +321,8 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
     loc.unmeasured = [t for t in model.tank_names if t not in sensed]
     if engine.kind == "equation":
         flagged_tanks = [c for c in loc.flagged + loc.suspect if c in model.tank_names]
+        if INVENTORY in loc.flagged:
+            flagged_tanks += [t for t in model.tank_names if t not in flagged_tanks]  # any sensor
         near: list[str] = []
         for t in flagged_tanks:
             for u in [t] + sorted(tanks_touching(model, t) - {t}):

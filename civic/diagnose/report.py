@@ -19,9 +19,9 @@ from civic.plant.figures import save_figure
 from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording, initial_state, simulate
 
-from .compare import EquationError, SimulationError, rmse
+from .compare import INVENTORY, EquationError, SimulationError, rmse
 from .fit import Diagnosis
-from .locate import mask_intervals, merge
+from .locate import mask_intervals, median_nonzero, merge
 from scipy.ndimage import uniform_filter1d
 
 SHORT_HORIZON_S = 30.0
@@ -123,6 +123,12 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
                 rate, z = _mean_rate(diag, t, f["prev"])
                 if math.isfinite(rate):
                     ev.append(f"{t} mass balance: {rate:+.4f} L/s unexplained on average (z = {z:+.1f})")
+            if INVENTORY in eng.columns:
+                j = eng.columns.index(INVENTORY)
+                before, after = (median_nonzero(_resid(diag, r)[:, j]) for r in (f["prev"], f["fit"]))
+                if abs(before) > diag.sigma[j]:
+                    ev.append(f"the measured volumes add up to {before:+.3f} L off the {model.total_volume:g} L "
+                              f"the circuit holds (less what the model lets out); with it: {after:+.3f} L")
             if mech.name == "leak":
                 ev.append("concealed in closed loop: levels track their setpoints, but the actuators "
                           "work against a loss the model does not have (mass balance of "

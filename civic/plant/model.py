@@ -175,6 +175,7 @@ class PlantModel:
     name: str = "plant"
     dt: float = 0.1
     substeps: int = 2
+    total_volume: float | None = None   # water the closed circuit holds (L), if the datasheet states it
     inputs: list[Input] = field(default_factory=list)
     tanks: list[Tank] = field(default_factory=list)
     pumps: list[Pump] = field(default_factory=list)
@@ -189,12 +190,14 @@ class PlantModel:
         unknown = set(d) - {"model", "inputs", "tank", "pump", "valve", "link", "sensor"}
         if unknown:
             raise CivicError(f"{where}: unknown section(s) {', '.join(sorted(unknown))}")
-        bad = set(m) - {"name", "dt", "substeps"}
+        bad = set(m) - {"name", "dt", "substeps", "total_volume"}
         if bad:
             raise CivicError(f"{where}: [model] unknown key(s) {', '.join(sorted(bad))}")
         try:
+            total = m.get("total_volume")
             model = cls(name=str(m.get("name", "plant")), dt=float(m.get("dt", 0.1)),
-                        substeps=int(m.get("substeps", 2)))
+                        substeps=int(m.get("substeps", 2)),
+                        total_volume=None if total is None else float(total))
         except (TypeError, ValueError) as exc:
             raise CivicError(f"{where}: [model]: {exc}") from exc
         for name, spec in d.get("inputs", {}).items():
@@ -223,6 +226,8 @@ class PlantModel:
     def to_dict(self) -> dict:
         d = {"model": {"name": self.name, "dt": self.dt, "substeps": self.substeps},
              "inputs": {}}
+        if self.total_volume is not None:
+            d["model"]["total_volume"] = self.total_volume
         for i in self.inputs:
             spec = _dump(i)
             spec.pop("name")
@@ -307,6 +312,8 @@ class PlantModel:
             raise CivicError(f"{where}: dt must be > 0")
         if self.substeps < 1:
             raise CivicError(f"{where}: substeps must be >= 1")
+        if self.total_volume is not None and not (self.total_volume > 0 and math.isfinite(self.total_volume)):
+            raise CivicError(f"{where}: total_volume must be a positive number of litres")
         if not self.tanks:
             raise CivicError(f"{where}: no [[tank]]")
         for kind, items in (("input", self.inputs), ("tank", self.tanks), ("pump", self.pumps),

@@ -32,8 +32,12 @@ def make_fault(nominal, name):
         m.links.append(Link("leak", from_="T1", to="T4", coeff=0.012, law="orifice"))
     elif name == "leak_T2":
         m.links.append(Link("leak", from_="T2", to="T4", coeff=0.010, law="orifice"))
+    elif name == "leak_T3_out":
+        m.links.append(Link("leak", from_="T3", to="outside", coeff=0.010, law="orifice"))
     elif name == "offset_L2":
         m.find("sensor", "L2").offset = 0.4
+    elif name == "offset_L4":
+        m.find("sensor", "L4").offset = 0.5
     elif name == "deadtime_P1":
         m.find("pump", "P1").dead_time = 2.0
     elif name == "head_P1":

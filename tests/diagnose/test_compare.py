@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from civic.diagnose.compare import EquationError, SimulationError, holdout_mask
+from civic.diagnose.compare import INVENTORY, EquationError, SimulationError, holdout_mask
 from civic.plant.model import Link, Overflow, PlantModel
 from civic.plant.simulate import Recording, simulate
 
@@ -37,6 +37,8 @@ def _variant(nominal, name):
     m = nominal.copy()
     if name == "leak":
         m.links.append(Link("leak", from_="T2", to="T4", coeff=0.02, law="orifice"))
+    elif name == "leak_out":
+        m.links.append(Link("leak", from_="T3", to="outside", coeff=0.02, law="orifice"))
     elif name == "dead_time":
         m.find("pump", "P1").dead_time = 1.37          # fractional number of samples
     elif name == "head":
@@ -53,7 +55,7 @@ def _variant(nominal, name):
     return m
 
 
-@pytest.mark.parametrize("name", ["nominal", "leak", "dead_time", "head", "valve", "overflow", "overflow_split",
+@pytest.mark.parametrize("name", ["nominal", "leak", "leak_out", "dead_time", "head", "valve", "overflow", "overflow_split",
                                   "offset"])
 def test_equation_error_matches_simulator(nominal, name):
     true = _variant(nominal, name)
@@ -62,12 +64,16 @@ def test_equation_error_matches_simulator(nominal, name):
     sim = simulate(true, t, _inputs(n, 3), {"T1": 7.0, "T2": 6.0, "T3": 5.0, "T4": 22.0}, noise=True, seed=4)
     rec = Recording(t, {k: sim[k] for k in true.signal_names + true.input_names}, {}, name)
     ee = EquationError(true, rec)
+    assert ee.columns == ["T1", "T2", "T3", "T4", INVENTORY]
     R = ee.residuals(true)
+    # the true model accounts for every litre: the measured total stays at 40 L less what left
+    assert abs(np.mean(R[:, 4])) < 0.01, np.mean(R[:, 4])
+    R = R[:, :4]
     sd = np.array([0.02, 0.02, 0.02, 0.05]) * np.sqrt(2 / ee.smooth) * 1.5
     z = R.mean(axis=0) / (sd / np.sqrt(len(R)))
     assert np.all(np.abs(z) < 5), z
     if name != "nominal":
-        Rn = ee.residuals(nominal)
+        Rn = ee.residuals(nominal)[:, :4]
         assert np.max(np.abs(Rn.mean(axis=0) / (sd / np.sqrt(len(R))))) > 8 or \
             np.max(np.sqrt(np.mean(Rn ** 2, axis=0)) / sd) > 2
 

@@ -14,7 +14,10 @@ CASES = [
     # name, mechanism, component, parameter, true value, relative tolerance
     ("leak_T1", "leak", "T1", "c", 0.012, 0.3),
     ("leak_T2", "leak", "T2", "c", 0.010, 0.3),
+    ("leak_T3_out", "leak", "T3", "c", 0.010, 0.3),
     ("offset_L2", "sensor_offset", "L2", "offset", 0.4, 0.3),
+    # the reservoir's level drives no flow: only the sum against the stated 40 L shows it
+    ("offset_L4", "sensor_offset", "L4", "offset", 0.5, 0.1),
     ("deadtime_P1", "dead_time", "P1", "dead_time", 2.0, 0.3),
     ("head_P1", "pump_head", "P1", "head_coeff", 0.04, 0.3),
     ("overflow_T1", "overflow", "T1", "volume", 9.0, 0.05),
@@ -33,6 +36,8 @@ def test_concealed_fault_found(closed_loop_case, nominal, name, mech, comp, par,
     assert (top["mechanism"].name, top["mechanism"].component) == (mech, comp)
     fitted = (d.final_all.mechanisms[0] if d.final_all else top["fit"].mechanisms[-1]).values()
     assert abs(fitted[par] - value) <= tol * abs(value), fitted
+    if mech == "leak":       # where the water goes: the measured total tells T4 from outside
+        assert fitted["to"] == ("outside" if name.endswith("_out") else "T4"), fitted
     # significant on held-out data, and the held-out error really falls
     assert top["dbic"] < -10 and top["gain"] > 0.3
     assert d.final.val_sse < 0.7 * d.base.val_sse

@@ -52,8 +52,12 @@ def test_toml_round_trip_with_fault_mechanisms(plant, tmp_path):
     m.set("tank.T2.overflow.to", "T3")
     m.to_toml(tmp_path / "m.toml")
     back = PlantModel.from_toml(tmp_path / "m.toml")
-    assert back == m
+    assert back == m and back.total_volume == 40.0
     assert back.to_toml() == m.to_toml()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(m.to_toml().replace("total_volume = 40.0", "total_volume = -1.0"))
+    with pytest.raises(CivicError, match="total_volume must be a positive"):
+        PlantModel.from_toml(bad)
     assert plant.state_names == ["T1", "T2", "T3", "T4", "V1", "V2"]
     assert plant.input_names == ["p1", "v1", "v2"] and plant.signal_names == ["L1", "L2", "L3", "L4"]
 

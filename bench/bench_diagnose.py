@@ -7,7 +7,7 @@ to a pcap and diagnosed through the CLI code path (load, diagnose, report, no pl
 Run: python bench/bench_diagnose.py  (or `python -m bench`). Prints one line per case.
 
 Robustness sweep (not part of `python -m bench`, ~5 min on 2 cores):
-    python bench/bench_diagnose.py --robustness 1,2,3,4,5,6,7,8
+    python bench/bench_diagnose.py --robustness 1,2,3,4,5,6,7,8 [CASE,CASE...]
 10 min closed-loop cases, the plant's coefficients off by up to +-4 % (calibration), one
 concealed mechanism of the catalogue (two magnitudes, small but significant) or none;
 prints per case and the rates: clean cases without alarm, and cases where the first
@@ -83,9 +83,12 @@ SWEEP = {
     "leak_T2": ("leak", "T2", (0.006, 0.010)),
     "leak_T3": ("leak", "T3", (0.006, 0.012)),
     "leak_T3_out": ("leak", "T3", (0.008,)),
+    "leak_T2_out": ("leak", "T2", (0.010,)),
     "offset_L1": ("sensor_offset", "L1", (0.2, 0.4)),
     "offset_L3": ("sensor_offset", "L3", (0.2,)),
+    "offset_L4": ("sensor_offset", "L4", (0.3, 0.5)),
     "deadtime_P1": ("dead_time", "P1", (1.0, 2.0)),
+    "deadtime_V2": ("dead_time", "V2", (2.0,)),
     "head_P1": ("pump_head", "P1", (0.02, 0.04)),
     "overflow_T1": ("overflow", "T1", (9.0,)),
     "valve_V1": ("valve_characteristic", "V1", (1.3, 1.5)),
@@ -112,7 +115,7 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
     elif kind == "offset":
         m.find("sensor", comp).offset = mag
     elif kind == "deadtime":
-        m.find("pump", comp).dead_time = mag
+        m.find("pump" if comp.startswith("P") else "valve", comp).dead_time = mag
     elif kind == "head":
         m.find("pump", comp).head_coeff = mag
     elif kind == "overflow":
@@ -145,15 +148,20 @@ def sweep_case(job) -> dict:
         active = bool(np.any(res.signals["L1"] >= mag - 1e-9))
     named = [(f["mechanism"].name, f["mechanism"].component) for f in d.findings]
     ok = (not d.mismatch) if want[0] is None or not active else bool(named) and named[0] == want
+    if ok and want[0] == "leak":     # and where the water goes
+        to = d.findings[0]["fit"].mechanisms[-1].values()["to"]
+        ok = to == ("outside" if case.endswith("_out") else "T4")
+        named[0] += (to,)
     return {"case": case, "mag": mag, "seed": seed, "active": active, "ok": ok, "findings": named,
             "flagged": d.loc.flagged}
 
 
-def robustness(seeds: list[int]) -> int:
+def robustness(seeds: list[int], cases: list[str] | None = None) -> int:
     from collections import defaultdict
     from multiprocessing import Pool
 
-    jobs = [(c, mag, s) for c, (_, _, mags) in SWEEP.items() for mag in mags for s in seeds]
+    jobs = [(c, mag, s) for c, (_, _, mags) in SWEEP.items() if not cases or c in cases
+            for mag in mags for s in seeds]
     rates = defaultdict(lambda: [0, 0, 0])
     with Pool(2) as pool:
         for r in pool.imap_unordered(sweep_case, jobs):
@@ -173,5 +181,5 @@ def robustness(seeds: list[int]) -> int:
 
 if __name__ == "__main__":
     if len(sys.argv) > 2 and sys.argv[1] == "--robustness":
-        sys.exit(robustness([int(s) for s in sys.argv[2].split(",")]))
+        sys.exit(robustness([int(s) for s in sys.argv[2].split(",")], sys.argv[3].split(",") if len(sys.argv) > 3 else None))
     sys.exit(main())

@@ -30,6 +30,8 @@ BLOCK = 6          # rows averaged per block in the lack-of-fit statistic
 FLAG_RATIO = 2.0   # block-mean chi-square / expected above which a column is flagged
 FLAG_Z = 6.0       # |mean| in standard errors above which a column is flagged
 SCAN_MAX = 10.0    # one block-mean chi-square this high (equation error): a *suspect* column
+TAIL_RMS = 1.4     # rms this far above the robust (median-based) sigma: heavy tails, i.e. a
+                   # mismatch confined to transients (a valve's dead time): also a suspect
 
 
 @dataclass
@@ -308,7 +310,8 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
         # a mismatch confined to a few transients (a dead time after steps) barely moves the
         # record-wide ratio; the peak block points at it, the held-out selection decides
         loc.suspect = sorted((c for c, s in loc.scores.items()
-                              if c not in loc.flagged and c != INVENTORY and s["peak"] > SCAN_MAX),
+                              if c not in loc.flagged and c != INVENTORY
+                              and (s["peak"] > SCAN_MAX or s["rms"] > TAIL_RMS)),
                              key=lambda c: -loc.scores[c]["peak"])
     for j, c in enumerate(cols):
         if c in loc.flagged or c in loc.suspect:

@@ -40,6 +40,8 @@ def make_fault(nominal, name):
         m.find("sensor", "L4").offset = 0.5
     elif name == "deadtime_P1":
         m.find("pump", "P1").dead_time = 2.0
+    elif name == "deadtime_V2":
+        m.find("valve", "V2").dead_time = 2.0
     elif name == "head_P1":
         m.find("pump", "P1").head_coeff = 0.04
     elif name == "overflow_T1":

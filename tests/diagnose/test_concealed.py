@@ -19,6 +19,8 @@ CASES = [
     # the reservoir's level drives no flow: only the sum against the stated 40 L shows it
     ("offset_L4", "sensor_offset", "L4", "offset", 0.5, 0.1),
     ("deadtime_P1", "dead_time", "P1", "dead_time", 2.0, 0.3),
+    # shows only in the transients after V2 moves: a heavy-tailed residual, not a biased one
+    ("deadtime_V2", "dead_time", "V2", "dead_time", 2.0, 0.3),
     ("head_P1", "pump_head", "P1", "head_coeff", 0.04, 0.3),
     ("overflow_T1", "overflow", "T1", "volume", 9.0, 0.05),
     ("saturation_L1", "sensor_saturation", "L1", "max", 9.0, 0.01),
@@ -87,3 +89,26 @@ def test_burst_makes_a_suspect_not_a_flag(closed_loop_case, nominal):
     loc = localise(nominal, rec, eng, R, np.full(4, 0.2))
     assert loc.flagged == [] and loc.suspect == ["T1"] and "T1" in loc.tanks
     assert loc.intervals["T1"]
+
+
+def test_heavy_tails_make_a_suspect(closed_loop_case, nominal):
+    """Short spikes after actuator moves (a valve's dead time) leave the block means and the
+    peak block near noise, but the rms stands well above the robust sigma: a suspect."""
+    import numpy as np
+
+    from civic.diagnose.compare import EquationError
+    from civic.diagnose.locate import TAIL_RMS, localise
+
+    rec = closed_loop_case("clean")
+    eng = EquationError(nominal, rec)
+    rng = np.random.default_rng(1)
+    R = rng.normal(size=(eng.nwin, len(eng.columns))) * 0.2
+    R[:, -1] = 0.0                                     # inventory: on the stated total
+    R[:, 2] *= 0.5                                     # T3: quiet between the spikes...
+    spikes = np.arange(2, eng.nwin, 5)                 # ...one window in five, alternating sign
+    R[spikes, 2] += 0.2 * 3.5 * (-1.0) ** np.arange(len(spikes))
+    sigma = np.full(R.shape[1], 0.2)
+    loc = localise(nominal, rec, eng, R, sigma)
+    s = loc.scores["T3"]
+    assert s["rms"] > TAIL_RMS and s["peak"] < 10 and s["ratio"] < 2
+    assert loc.flagged == [] and loc.suspect == ["T3"] and "T3" in loc.tanks

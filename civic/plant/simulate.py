@@ -703,11 +703,14 @@ def initial_state(model: PlantModel, signals: dict, n_init: int = 1, total_volum
 
     Measured tanks: the first sample (the mean of the first `average` samples),
     inverting gain/offset.
-    Valves: their first command. Unmeasured tanks: when total_volume is given and
-    exactly one tank is unmeasured, by mass balance; otherwise by least squares
-    over the first n_init samples (a short simulation per candidate, scalar search).
+    Valves: their first command. Unmeasured tanks: when the total water is known
+    (`total_volume`, default the model's) and exactly one tank is unmeasured, by mass
+    balance; otherwise by least squares over the first n_init samples (a short
+    simulation per candidate, scalar search).
     """
     n_init = max(1, int(n_init))
+    if total_volume is None:
+        total_volume = model.total_volume
     x0 = measured_state(model, signals, average)
     missing = [t.name for t in model.tanks if t.name not in x0]
     if missing and total_volume is not None and len(missing) == 1:

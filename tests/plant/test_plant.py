@@ -479,3 +479,14 @@ def test_overflow_split_is_mass_exact_and_round_trips(plant, tmp_path):
         d["tank"][0]["overflow"].update(bad)
         with pytest.raises(CivicError, match=msg):
             PlantModel.from_dict(d)
+
+
+def test_initial_state_of_an_unmeasured_reservoir_from_the_total_water(plant):
+    """With the total stated in the model file, one unmeasured tank follows by mass balance."""
+    from civic.plant.simulate import initial_state
+
+    sig = {"L1": np.array([7.0]), "L2": np.array([6.0]), "L3": np.array([5.0]),
+           "p1": np.array([0.0]), "v1": np.array([0.0]), "v2": np.array([0.0])}
+    assert plant.total_volume == 40.0
+    assert initial_state(plant, sig)["T4"] == pytest.approx(22.0)
+    assert initial_state(plant, sig, total_volume=41.0)["T4"] == pytest.approx(23.0)

@@ -90,13 +90,12 @@ def _resid(diag: Diagnosis, res) -> np.ndarray:
     return eng.residuals(res.model)
 
 
-def _mean_rate(diag: Diagnosis, tank: str, res) -> tuple[float, float]:
-    """Mean mass-balance residual of a tank (L/s) and its z-score, for the evidence text."""
+def _mean_rate(diag: Diagnosis, tank: str, R: np.ndarray) -> tuple[float, float]:
+    """Mean mass-balance residual of a tank (L/s) and its z-score in the equation-error
+    residuals R, for the evidence text."""
     eng = diag.engine
-    if not isinstance(eng, EquationError) or tank not in eng.columns:
-        return float("nan"), float("nan")
     j = eng.columns.index(tank)
-    r = _resid(diag, res)[:, j]
+    r = R[:, j]
     rate = float(np.mean(r)) / (eng.W * eng.dt)
     z = float(np.mean(r) / (diag.sigma[j] / math.sqrt(len(r))))
     return rate, z
@@ -116,16 +115,18 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         ev = [f"held-out {eng.kind} error: BIC {f['dbic']:+.1f}, weighted SSE {-100 * f['gain']:+.0f} % "
               f"vs the calibrated model without it"]
         if isinstance(eng, EquationError):
+            Rp = _resid(diag, f["prev"])            # the model without this finding
             tanks = [mech.component] if mech.component in eng.columns else []
             if mech.name == "leak" and params.get("to") in eng.columns:
                 tanks.append(params["to"])
             for t in tanks:
-                rate, z = _mean_rate(diag, t, f["prev"])
+                rate, z = _mean_rate(diag, t, Rp)
                 if math.isfinite(rate):
                     ev.append(f"{t} mass balance: {rate:+.4f} L/s unexplained on average (z = {z:+.1f})")
             if INVENTORY in eng.columns:
                 j = eng.columns.index(INVENTORY)
-                before, after = (median_nonzero(_resid(diag, r)[:, j]) for r in (f["prev"], f["fit"]))
+                before = median_nonzero(Rp[:, j])
+                after = median_nonzero(_resid(diag, f["fit"])[:, j])
                 if abs(before) > diag.sigma[j]:
                     ev.append(f"the measured volumes add up to {before:+.3f} L off the {model.total_volume:g} L "
                               f"the circuit holds (less what the model lets out); with it: {after:+.3f} L")

@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 OUT    ?= out
 P4C    ?= p4c-bm2-ss
 
-.PHONY: demo test bench p4 clean venv
+.PHONY: demo test bench p4 p4-tna clean venv
 
 venv: $(VENV)/.installed
 
@@ -36,6 +36,12 @@ p4:
 	mkdir -p build/v1model
 	$(P4C) --std p4-16 --arch v1model -o build/v1model/civic.json \
 		--p4runtime-files build/v1model/civic.p4info.txtpb p4src/v1model/civic.p4
+
+# Compile the TNA program for Tofino with its resource report (needs bf-p4c).
+p4-tna:
+	@command -v bf-p4c >/dev/null 2>&1 || { echo "make p4-tna: bf-p4c not found on PATH (see p4src/README.md)"; exit 1; }
+	mkdir -p build/tna
+	bf-p4c --target tofino --arch tna -g -I p4src -o build/tna p4src/tna/civic.p4
 
 clean:
 	rm -rf $(OUT) build

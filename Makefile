@@ -4,6 +4,8 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 OUT    ?= out
 P4C    ?= p4c-bm2-ss
+# the prebuilt toolchain's place (p4src/README.md), when installed
+export PATH := $(if $(wildcard /opt/p4/bin),/opt/p4/bin:)$(PATH)
 
 .PHONY: demo test bench p4 p4-tna clean venv
 

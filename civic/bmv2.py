@@ -16,10 +16,16 @@ helper thread that enters the namespace with setns(2); a socket stays in the
 namespace it was created in, so the rest of the process never changes namespace.
 IPv6 is disabled in the namespace so the kernel itself sends nothing on the ports.
 
-Frames are sent one at a time (lockstep): frame i is sent on port 1 and the
-next frame waits until the switch's output for it appeared on port 2, or until
-`frame_timeout` passed (the frame was not forwarded: reported in `missing`).
-That keeps the input order exact without relying on timestamps.
+Frames are pipelined: up to `window` frames are in flight at once. The switch
+forwards port 1 -> port 2 in order (one ingress thread, one egress queue per port,
+veths keep order), so each output frame is matched to the oldest frame still in
+flight that it equals up to the bytes a switch may rewrite (verdict, UDP checksum);
+frames skipped over by a later match were not forwarded (`missing`). An output
+that matches none is the oldest in-flight frame's output, changed beyond those
+bytes (a comparison with the model then shows it). When nothing comes out for
+`frame_timeout` seconds, every frame still in flight counts as not forwarded.
+That keeps the input order exact without relying on timestamps, at BMv2's speed
+instead of one round trip per frame (`window=1` is the old lockstep).
 """
 from __future__ import annotations
 
@@ -35,11 +41,10 @@ import subprocess
 import tempfile
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
-
-import numpy as np
 
 from civic import p4runtime as p4rt
 from civic.entries import load_entries
@@ -52,7 +57,9 @@ CLONE_NEWNET = 0x40000000
 ETH_P_ALL = 0x0003
 PACKET_OUTGOING = 4
 # bytes a switch may change in a plant message: UDP checksum and verdict
-MUTABLE = (14 + 20 + 6, 14 + 20 + 7, 14 + 20 + 8 + 18, 14 + 20 + 8 + 19)
+UDP_CSUM = 14 + 20 + 6
+VERDICT = 14 + 20 + 8 + 18
+WINDOW = 16          # frames in flight: throughput flattens from 8 on; 64 overruns a BMv2 input queue (frames lost)
 
 
 @dataclass
@@ -131,14 +138,9 @@ def _sigterm(signum, frame):
 
 
 def _same_frame(out: bytes, inp: bytes) -> bool:
-    """out is inp, up to the bytes a switch may rewrite (verdict, UDP checksum)."""
-    if len(out) != len(inp):
-        return False
-    a, b = np.frombuffer(out, np.uint8).copy(), np.frombuffer(inp, np.uint8).copy()
-    idx = [i for i in MUTABLE if i < len(a)]
-    a[idx] = 0
-    b[idx] = 0
-    return bool(np.array_equal(a, b))
+    """out is inp, up to the bytes a switch may rewrite (UDP checksum, verdict)."""
+    return (len(out) == len(inp) and out[:UDP_CSUM] == inp[:UDP_CSUM]
+            and out[UDP_CSUM + 2:VERDICT] == inp[UDP_CSUM + 2:VERDICT] and out[VERDICT + 2:] == inp[VERDICT + 2:])
 
 
 class BMv2Switch:
@@ -311,46 +313,59 @@ class BMv2Switch:
             self.conn.set_pipeline(self.pipeline.p4info, self.pipeline.device_config, self.pipeline.cookie)
         return p4rt.converge(self.conn, load_entries(entries_path), self.schema, self.pipeline)
 
-    def send_frames(self, frames: Sequence[bytes], frame_timeout: float = 1.0) -> list:
-        """Lockstep: each frame on port 1, its output from port 2 (None when not forwarded)."""
-        out: list = []
+    def send_frames(self, frames: Sequence[bytes], frame_timeout: float = 1.0, window: int = WINDOW,
+                    progress=None) -> list:
+        """Each frame on port 1, its output from port 2 in input order (None when not forwarded).
+
+        progress: called with the number of frames resolved so far (forwarded or not), now and then.
+        """
+        frames = [bytes(f) for f in frames]
+        out: list = [None] * len(frames)
+        pending: deque = deque()
         self._drain()
-        for i, frame in enumerate(frames):
-            frame = bytes(frame)
-            try:
-                self.tx.send(frame)
-            except OSError as exc:
-                raise CivicError(f"frame {i} ({len(frame)} bytes) cannot be sent on a veth: {exc.strerror}") from None
-            got, strays = self._recv(frame_timeout, frame)
-            for stray in strays:
-                late = [j for j in range(max(0, i - 8), i) if out[j] is None and _same_frame(stray, bytes(frames[j]))]
-                if late:
-                    raise CivicError(f"output of frame {late[-1]} arrived after {frame_timeout:g} s; "
-                                     "raise frame_timeout")
-            out.append(got)
+        sent = done = 0
+        quiet_since = time.monotonic()
+        while sent < len(frames) or pending:
+            while sent < len(frames) and len(pending) < window:
+                try:
+                    self.tx.send(frames[sent])
+                except OSError as exc:
+                    raise CivicError(f"frame {sent} ({len(frames[sent])} bytes) cannot be sent on a veth: "
+                                     f"{exc.strerror}") from None
+                pending.append(sent)
+                sent += 1
+            left = frame_timeout - (time.monotonic() - quiet_since)
+            if left > 0 and select.select([self.rx], [], [], left)[0]:
+                while True:
+                    try:
+                        data, addr = self.rx.recvfrom(65535, socket.MSG_DONTWAIT)
+                    except BlockingIOError:
+                        break
+                    if addr[2] != PACKET_OUTGOING:
+                        done += self._match(data, frames, pending, out)
+                quiet_since = time.monotonic()
+            elif left <= 0:
+                done += len(pending)            # quiet for frame_timeout: none of these came out
+                pending.clear()
+                quiet_since = time.monotonic()
+            if progress is not None:
+                progress(done)
         return out
 
-    def _recv(self, timeout: float, expect: bytes, grace: float = 0.05) -> tuple[bytes | None, list]:
-        """(output of `expect`, other frames seen meanwhile).
-
-        The output is the first frame on the output port that is `expect` up to verdict and
-        checksum; if only other frames come (a switch that changed more), the first of them,
-        after waiting `grace` seconds more for a matching one.
-        """
-        deadline = time.monotonic() + timeout
-        seen: list = []
-        while True:
-            left = deadline - time.monotonic()
-            if left <= 0 or not select.select([self.rx], [], [], left)[0]:
-                return (seen[0] if seen else None), seen[1:]
-            data, addr = self.rx.recvfrom(65535)
-            if addr[2] == PACKET_OUTGOING:
-                continue
-            if _same_frame(data, expect):
-                return data, seen
-            if not seen:
-                deadline = min(deadline, time.monotonic() + grace)
-            seen.append(data)
+    @staticmethod
+    def _match(data: bytes, frames: list, pending: deque, out: list) -> int:
+        """Give an output frame to its input; returns how many pending frames it resolved."""
+        if not pending:
+            raise CivicError(f"a {len(data)}-byte frame came out of the switch with no frame in flight "
+                             "(a late output: raise frame_timeout)")
+        for pos, j in enumerate(pending):
+            if _same_frame(data, frames[j]):
+                for _ in range(pos + 1):        # the ones skipped over were not forwarded
+                    pending.popleft()
+                out[j] = data
+                return pos + 1
+        out[pending.popleft()] = data           # changed beyond verdict and checksum
+        return 1
 
     def _drain(self) -> None:
         while select.select([self.rx], [], [], 0)[0]:
@@ -386,17 +401,19 @@ def output_capture(capture: Capture, frames: list, udp_port: int, plant_prefix: 
 def replay_bmv2(captures: Sequence[Capture], entries_path: str | Path, pipeline_dir: str | Path, *,
                 reset_between: bool = True, frame_timeout: float = 1.0, startup_timeout: float = 20.0,
                 binary: str = SWITCH_BINARY, log_path: str | Path | None = None,
-                padded_bytes: bool = True) -> list[BMv2Output]:
+                padded_bytes: bool = True, window: int = WINDOW, progress=None) -> list[BMv2Output]:
     """Replay captures through BMv2 (simple_switch_grpc) and return what came out, in input order.
 
     captures:      `civic.wire.Capture`s (e.g. from `read_pcap`); every frame of each is sent on
-                   switch port 1, in order, one at a time.
+                   switch port 1, in order, up to `window` frames in flight (1 = lockstep).
     entries_path:  an entries JSON (docs/pipeline.md section 6) installed with `civic configure`'s
                    converge; it also gives udp_port / plant_prefix for decoding the output.
     pipeline_dir:  directory with civic.json (BMv2 JSON) and civic.p4info.txtpb from p4c-bm2-ss.
     reset_between: re-push the pipeline before each capture, so every capture starts from zeroed
                    registers like `SwitchModel(entries).run(...)`; False carries state across captures.
-    frame_timeout: seconds to wait for a frame's output on port 2 before declaring it not forwarded.
+    frame_timeout: seconds without output on port 2 after which the frames in flight count as not
+                   forwarded.
+    progress:      called with the number of frames resolved, over all captures, now and then.
     padded_bytes:  send full-width P4Runtime byte strings (older PI builds reject canonical ones;
                    newer ones accept both).
     log_path:      keep the switch's stdout/stderr there (default: a temporary file, removed).
@@ -412,9 +429,12 @@ def replay_bmv2(captures: Sequence[Capture], entries_path: str | Path, pipeline_
     results = []
     with BMv2Switch(pipeline_dir, binary=binary, startup_timeout=startup_timeout, log_path=log_path,
                     padded_bytes=padded_bytes) as sw:
+        before = 0
         for n, cap in enumerate(captures):
             sw.configure(entries_path, reset=reset_between and n > 0)
-            frames = sw.send_frames([cap.frame(i) for i in range(len(cap))], frame_timeout)
+            step = None if progress is None else (lambda k, b=before: progress(b + k))
+            frames = sw.send_frames([cap.frame(i) for i in range(len(cap))], frame_timeout, window, step)
+            before += len(cap)
             missing = [i for i, f in enumerate(frames) if f is None]
             results.append(BMv2Output(frames=frames, missing=missing,
                                       capture=output_capture(cap, frames, entries.udp_port, entries.plant_prefix)))

@@ -44,7 +44,10 @@ def replay_on_bmv2(captures: list[tuple[Capture, Path]], entries_path: str, pipe
     """All captures through one BMv2 switch (registers reset between captures); write the outputs."""
     from civic.bmv2 import replay_bmv2
 
-    results = replay_bmv2([c for c, _ in captures], entries_path, pipeline)
+    with Progress(transient=True) as progress:
+        task = progress.add_task("BMv2", total=sum(len(c) for c, _ in captures))
+        results = replay_bmv2([c for c, _ in captures], entries_path, pipeline,
+                              progress=lambda n: progress.update(task, completed=n))
     evaluated = missing = 0
     for (_, dst), res in zip(captures, results):
         res.capture.write(dst)

@@ -33,6 +33,24 @@ def paper_entries(training_runs):
     return train(training_runs["endpoint"], load_monitors(), "endpoint", False)
 
 
+@pytest.fixture(scope="session")
+def v1model_build(tmp_path_factory):
+    """p4src/v1model/civic.p4 compiled by p4c-bm2-ss (civic.json + P4Info), once per session."""
+    import shutil
+    import subprocess
+
+    from data import ROOT
+    if shutil.which("p4c-bm2-ss") is None:
+        pytest.skip("p4c-bm2-ss not on PATH (install the P4 toolchain, see p4src/README.md)")
+    build = tmp_path_factory.mktemp("v1model")
+    res = subprocess.run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(build / "civic.json"),
+                          "--p4runtime-files", str(build / "civic.p4info.txtpb"),
+                          str(ROOT / "p4src" / "v1model" / "civic.p4")], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert "warning" not in (res.stderr + res.stdout).lower(), res.stderr + res.stdout
+    return build
+
+
 # ------------------------------------------------------------------ CI: the switch tests must run
 _BMV2_SKIPS: list = []
 

@@ -26,6 +26,10 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, help="random seed (noise, schedule)")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise: deterministic output")
     p.add_argument("--src-ip", default="10.0.0.1", help="gateway address in the pcap (default 10.0.0.1)")
+    p.add_argument("--plants", type=int, default=1, metavar="N",
+                   help="N plants in one capture, gateways SRC_IP, SRC_IP+1, ..., messages interleaved; "
+                        "plant k uses seed SEED+k, and drain/fill without --fault cycle the classes "
+                        "normal, warning, error over the plants (default 1)")
     p.add_argument("-o", "--output", metavar="OUT.pcap|OUT.csv")
     p.add_argument("--plot", metavar="OUT.png")
     p.add_argument("--labels", metavar="LABELS.csv", help="append a labels row (drain/fill)")
@@ -56,6 +60,8 @@ def run(args) -> int:
     if args.inputs and args.like:
         raise CivicError("give --inputs or --like, not both")
     if args.inputs or args.like:
+        if args.plants != 1:
+            raise CivicError("--plants applies to simulated scenarios, not --inputs/--like")
         if args.scenario:
             raise CivicError("SCENARIO and --inputs/--like exclude each other")
         return _open_loop(args, model)
@@ -64,6 +70,8 @@ def run(args) -> int:
     if not args.output:
         raise CivicError("-o OUT.pcap|OUT.csv is required")
     _check_output(args.output)
+    if args.plants != 1:
+        return _fleet(args, model)
     if args.duration is not None and not args.duration > 0:
         raise CivicError("--duration must be > 0")
     from civic.plant.procedures import (append_label, label_row, make_procedure, parse_fault,
@@ -110,6 +118,63 @@ def run(args) -> int:
 
 
 # ---------------------------------------------------------------------------------------
+def _fleet(args, model) -> int:
+    """N plants of one scenario in one pcap, one gateway address each, messages interleaved in time."""
+    from rich.progress import Progress
+
+    from civic.plant.procedures import (FAULT_CLASSES, append_label, apply_faults, label_row, make_procedure,
+                                        parse_fault, run_procedure)
+    from civic.plant.simulate import WIRE_COLUMNS, to_wire
+    from civic.wire import build_frames, int_to_ip, ip_to_int, write_pcap
+
+    n = args.plants
+    first = ip_to_int(args.src_ip)
+    if not 1 <= n <= 256 or (first & 0xFF) + n > 256:
+        raise CivicError(f"--plants {n} from {args.src_ip}: the gateways must share the /24 (at most "
+                         f"{256 - (first & 0xFF)} plants)")
+    if not args.output.endswith(".pcap"):
+        raise CivicError("--plants writes one capture: the output must end in .pcap")
+    if args.duration is not None and not args.duration > 0:
+        raise CivicError("--duration must be > 0")
+    scenario, base_seed = args.scenario, args.seed if args.seed is not None else 0
+    fixed = parse_fault(args.fault)
+    if scenario == "closed-loop" and (args.v0 is not None or args.labels or args.schedule or args.truth):
+        raise CivicError("--plants closed-loop takes no --v0, --labels, --schedule or --truth")
+    valve = {"drain": "vm1", "fill": "vm2"}.get(scenario)
+    times, frames, rows = [], [], []
+    with Progress(transient=True) as progress:
+        task = progress.add_task(f"simulating {n} plants", total=n)
+        for k in range(n):
+            seed, ip = base_seed + k, int_to_ip(first + k)
+            faults = fixed or ({} if valve is None else
+                               {valve: FAULT_CLASSES[scenario][("normal", "warning", "error")[k % 3]]})
+            if scenario == "closed-loop":
+                from civic.plant.control import run_closed_loop
+                m = apply_faults(model, faults) if faults else model
+                res = run_closed_loop(m, args.duration or 600.0, controller=args.controller, seed=seed,
+                                      noise=not args.no_noise, controller_model=model)
+                t, signals = res.t, res.signals
+            else:
+                proc = make_procedure(model, scenario, args.v0, faults, args.duration)
+                t, signals = proc.t, run_procedure(proc, noise=not args.no_noise, seed=seed)
+                rows.append(label_row(args.output.rsplit("/", 1)[-1], proc, seed, ip))
+            fields = to_wire(model, signals)
+            seq0 = int(np.random.default_rng(seed).integers(0, 2**32))
+            f = build_frames({c: fields[c] for c in WIRE_COLUMNS}, src_ip=ip, seq0=seq0)
+            frames += [row.tobytes() for row in f]
+            times.append(EPOCH + np.asarray(t) + k * model.dt / n)      # plant k sends k/N of a period later
+            progress.advance(task)
+    times = np.concatenate(times)
+    order = np.argsort(times, kind="stable")
+    write_pcap(args.output, times[order], [frames[i] for i in order])
+    for row in rows:
+        if args.labels:
+            append_label(args.labels, row)
+    print(f"simulated {scenario} on {n} plants ({args.src_ip} .. {int_to_ip(first + n - 1)}): "
+          f"{len(frames)} messages interleaved -> {args.output}")
+    return 0
+
+
 def _check_output(path: str) -> None:
     if not (path.endswith(".pcap") or path.endswith(".csv")):
         raise CivicError(f"{path}: output must end in .pcap or .csv")

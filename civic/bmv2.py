@@ -37,6 +37,7 @@ import select
 import shutil
 import signal
 import socket
+import struct
 import subprocess
 import tempfile
 import threading
@@ -56,6 +57,8 @@ GRPC_PORT = 9559
 CLONE_NEWNET = 0x40000000
 ETH_P_ALL = 0x0003
 PACKET_OUTGOING = 4
+SOL_PACKET, PACKET_AUXDATA = 263, 8
+TP_STATUS_VLAN_VALID, TP_STATUS_VLAN_TPID_VALID = 0x10, 0x40
 # bytes a switch may change in a plant message: UDP checksum and verdict
 UDP_CSUM = 14 + 20 + 6
 VERDICT = 14 + 20 + 8 + 18
@@ -101,6 +104,7 @@ def _open_ns_sockets(netns: str, send_if: str, recv_if: str) -> tuple[socket.soc
             rx = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETH_P_ALL))
             rx.bind((recv_if, 0))
             rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+            rx.setsockopt(SOL_PACKET, PACKET_AUXDATA, 1)     # VLAN tags the kernel strips (see _recv_frame)
             result["socks"] = (tx, rx)
         except OSError as exc:
             result["error"] = exc
@@ -135,6 +139,25 @@ def _free_link_local() -> tuple[str, str]:
 
 def _sigterm(signum, frame):
     raise SystemExit(128 + signum)
+
+
+def _recv_frame(rx: socket.socket) -> tuple[bytes, int] | None:
+    """(frame, packet type) from a packet socket without blocking, or None when none is waiting.
+
+    The kernel takes an 802.1Q tag out of a received frame into metadata (VLAN offload; veths
+    have no ethtool switch here); like libpcap, put it back so the frame is what was on the wire.
+    """
+    try:
+        data, anc, _, addr = rx.recvmsg(65535, socket.CMSG_SPACE(20), socket.MSG_DONTWAIT)
+    except BlockingIOError:
+        return None
+    for level, kind, aux in anc:
+        if level == SOL_PACKET and kind == PACKET_AUXDATA and len(aux) >= 20:
+            status, _, _, _, _, tci, tpid = struct.unpack("=IIIHHHH", aux[:20])
+            if status & TP_STATUS_VLAN_VALID:
+                tpid = tpid if status & TP_STATUS_VLAN_TPID_VALID else 0x8100
+                data = data[:12] + struct.pack("!HH", tpid, tci) + data[12:]
+    return data, addr[2]
 
 
 def _same_frame(out: bytes, inp: bytes) -> bool:
@@ -336,13 +359,9 @@ class BMv2Switch:
                 sent += 1
             left = frame_timeout - (time.monotonic() - quiet_since)
             if left > 0 and select.select([self.rx], [], [], left)[0]:
-                while True:
-                    try:
-                        data, addr = self.rx.recvfrom(65535, socket.MSG_DONTWAIT)
-                    except BlockingIOError:
-                        break
-                    if addr[2] != PACKET_OUTGOING:
-                        done += self._match(data, frames, pending, out)
+                while (got := _recv_frame(self.rx)) is not None:
+                    if got[1] != PACKET_OUTGOING:
+                        done += self._match(got[0], frames, pending, out)
                 quiet_since = time.monotonic()
             elif left <= 0:
                 done += len(pending)            # quiet for frame_timeout: none of these came out

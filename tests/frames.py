@@ -57,3 +57,41 @@ def interleave(paths, tmp_path, junk=True, name="mixed.pcap"):
     out = tmp_path / name
     write_pcap(out, np.array(times), frames)
     return out
+
+
+def edge_frames() -> list[bytes]:
+    """Frames at the edges of the contract (docs/pipeline.md section 1), beyond junk_frames()."""
+    from scapy.layers.inet import TCP
+    from scapy.layers.l2 import Dot1Q
+
+    base = Ether(src="02:00:00:00:00:01", dst="02:00:00:00:00:02")
+    ip = IP(src="10.0.0.1", dst="10.0.0.2")
+    udp = UDP(sport=50001, dport=50000)
+    short = bytes(base / ip / udp / Raw(b"\x01\x02\x03\x04"))                      # 46 bytes
+    full = bytes(PlantMessage(seq=7, l3=6000, v2=1000))
+    ffff = PlantMessage(seq=0xFFFFFFFF, l1=0xFFFF, l2=0xFFFF, l3=0xFFFF, l4=0xFFFF, p1=0xFFFF, v1=0xFFFF,
+                        v2=0xFFFF, verdict=0xFFFF)
+    return [
+        bytes(base / ip / TCP(sport=50001, dport=50000) / Raw(full)),               # TCP
+        short,                                                                     # short payload, unpadded
+        short + b"\x00" * (60 - len(short)),                                       # same, Ethernet padding
+        bytes(base / ip / udp / Raw(full[:10])) + b"\x00" * 8,                     # 10-byte payload, padded
+        bytes(base / IP(src="10.0.0.3", dst="10.0.0.2", len=20 + 28 + 6) /         # UDP length 28 inside a
+              UDP(sport=50001, dport=50000, len=28) / Raw(full + b"\xaa" * 6)),    # longer IP datagram
+        bytes(base / ip / UDP(sport=50001, dport=50000, len=36) / Raw(full + b"\xbb" * 8)),  # UDP len 36
+        bytes(base / ip / UDP(sport=50001, dport=9999) / PlantMessage(seq=8)),       # other port
+        bytes(base / IP(src="10.0.0.2", dst="10.0.0.1") / UDP(sport=50000, dport=50001) /
+              PlantMessage(seq=9, l3=6000)),                                       # reverse direction
+        bytes(base / IP(src="10.0.0.200", dst="10.0.0.2") / udp / ffff),            # look-alike, in prefix
+        bytes(base / IP(src="10.0.1.200", dst="10.0.0.2") / udp / ffff),            # look-alike, outside
+        bytes(base / IP(src="10.0.0.201", dst="10.0.0.2") / UDP(sport=50001, dport=50000, chksum=0) / ffff),
+        bytes(base / Dot1Q(vlan=5) / ip / udp / PlantMessage(seq=10)),               # VLAN tag
+    ]
+
+
+def sequence_edges(src="10.0.0.9") -> list[bytes]:
+    """One plant's drain-like messages across the 32-bit wrap-around, with gaps and a repeat."""
+    seqs = ([0xFFFFFFFF - 24 + i for i in range(25)] + list(range(0, 30))      # wrap: no gap
+            + list(range(33, 60)) + [59] + list(range(60, 90)))                # a gap, a repeated seq
+    return [bytes(plant(src=src, seq=s, l3=7000 - 25 * i, v2=1000, l2=3000, l1=2000, l4=20000))
+            for i, s in enumerate(seqs)]

@@ -210,46 +210,65 @@ def test_missing_switch_binary_is_one_line_error(tmp_path, monkeypatch):
 
 
 # ---------------------------------------------------------------- real BMv2
-@pytest.mark.skipif(not HAVE_BMV2, reason="p4c-bm2-ss and simple_switch_grpc not both on PATH")
-@pytest.mark.skipif(not IS_ROOT, reason="BMv2 replay needs root (network namespace)")
-def test_bmv2_matches_model(tmp_path, trained_entries):
-    from frames import junk_frames, plant
+def needs_bmv2(test):
+    test = pytest.mark.skipif(not IS_ROOT, reason="BMv2 needs root (network namespace)")(test)
+    return pytest.mark.skipif(not HAVE_BMV2, reason="p4c-bm2-ss and simple_switch_grpc not both on PATH")(test)
 
-    from civic.bmv2 import replay_bmv2
-    from civic.entries import load_entries
-    from civic.pipeline import SwitchModel
-    from civic.wire import read_pcap, write_pcap
 
-    build = tmp_path / "build"
-    build.mkdir()
-    res = subprocess.run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(build / "civic.json"),
-                          "--p4runtime-files", str(build / "civic.p4info.txtpb"),
-                          str(ROOT / "p4src" / "v1model" / "civic.p4")], capture_output=True, text=True)
-    assert res.returncode == 0, res.stderr
-    entries_path = tmp_path / "entries.json"
-    trained_entries.save(entries_path)
-    entries = load_entries(entries_path)
+def civic_cli(*argv, check=True) -> subprocess.CompletedProcess:
+    res = subprocess.run([sys.executable, "-m", "civic", *map(str, argv)], capture_output=True, text=True,
+                         cwd=ROOT)
+    if check:
+        assert res.returncode == 0, res.stderr
+    return res
 
-    caps = [read_pcap(p) for p in sorted((ROOT / "traces" / "training").glob("*.pcap"))]
-    crafted = []
-    for i in range(30):                       # plant messages with junk in between
-        crafted.append(bytes(plant(seq=i + 1, l3=6000 - 40 * i, v2=1000)))
+
+@pytest.fixture(scope="module")
+def bmv2_inputs(tmp_path_factory, trained_entries):
+    """Entries and every capture the switch must get right: recordings, edge cases, two 64-plant fleets."""
+    from frames import edge_frames, junk_frames, plant, sequence_edges
+
+    from civic.wire import write_pcap
+
+    d = tmp_path_factory.mktemp("bmv2_inputs")
+    trained_entries.save(d / "entries.json")
+    crafted, extra = [], junk_frames() + edge_frames()
+    for i, frame in enumerate(sequence_edges()):            # plant messages with junk in between
+        crafted.append(frame)
         if i % 3 == 0:
-            crafted.append(junk_frames()[(i // 3) % len(junk_frames())])
-    crafted += junk_frames()
-    crafted.append(bytes(plant(seq=31, l3=4000, v2=1000)) + b"\x00" * 6)     # Ethernet trailer
-    crafted.append(bytes(plant(src="10.0.1.1", seq=1)))                       # outside the plant prefix
-    crafted.append(bytes(plant(seq=32, dport=50001)))                         # wrong port
-    write_pcap(tmp_path / "crafted.pcap", np.arange(len(crafted)) * 0.1, crafted)
-    caps.append(read_pcap(tmp_path / "crafted.pcap"))
+            crafted.append(extra[(i // 3) % len(extra)])
+    crafted += extra + [bytes(plant(seq=1000, l3=4000, v2=1000)) + b"\x00" * 6]       # Ethernet trailer
+    write_pcap(d / "edges.pcap", np.arange(len(crafted)) * 0.01, crafted)
+    civic_cli("simulate", "drain", "--plants", "64", "--seed", "100", "-o", d / "fleet_drain.pcap")
+    civic_cli("simulate", "fill", "--plants", "64", "--seed", "200", "-o", d / "fleet_fill.pcap")
+    caps = sorted((ROOT / "traces" / "training").glob("*.pcap")) + [d / "edges.pcap", d / "fleet_drain.pcap",
+                                                                    d / "fleet_fill.pcap"]
+    return d / "entries.json", caps
 
-    outputs = replay_bmv2(caps, entries_path, build)
-    for cap, out in zip(caps, outputs):
-        assert out.missing == [], f"{cap.path}: frames {out.missing[:5]} not forwarded"
-        expect = read_pcap(cap.path, entries.udp_port, entries.plant_prefix)
-        expect.set_verdicts(SwitchModel(entries).run(expect.messages))
-        for i in range(len(expect)):
-            assert out.frames[i] == expect.frame(i), f"{cap.path} frame {i}"
+
+@needs_bmv2
+def test_bmv2_output_is_byte_identical_to_model(tmp_path, bmv2_inputs, v1model_build):
+    """civic replay --target bmv2 and --target model write the same bytes, file for file."""
+    entries, caps = bmv2_inputs
+    civic_cli("replay", *caps, "-o", tmp_path / "model", "--entries", entries, "--target", "model")
+    res = civic_cli("replay", *caps, "-o", tmp_path / "bmv2", "--entries", entries, "--target", "bmv2",
+                    "--pipeline", v1model_build)
+    assert "did not come out" not in res.stdout
+    from civic.wire import read_pcap
+    for cap in caps:
+        model, bmv2 = (tmp_path / "model" / cap.name).read_bytes(), (tmp_path / "bmv2" / cap.name).read_bytes()
+        if model != bmv2:
+            a, b = read_pcap(tmp_path / "model" / cap.name), read_pcap(tmp_path / "bmv2" / cap.name)
+            first = next((i for i in range(min(len(a), len(b))) if a.frame(i) != b.frame(i)), min(len(a), len(b)))
+            pytest.fail(f"{cap.name}: BMv2 differs from the model first at frame {first} "
+                        f"({len(a)} model frames, {len(b)} BMv2 frames)")
+    # the crafted cases really exercise the switch: verdicts given, and junk left alone
+    inp, out = read_pcap(caps[-3]), read_pcap(tmp_path / "bmv2" / "edges.pcap")
+    assert np.count_nonzero(out.messages["verdict"]) > 20
+    changed = [i for i in range(len(inp)) if inp.frame(i) != out.frame(i)]
+    assert all(out.messages["plant"][i] for i in changed)
+    fleet = read_pcap(tmp_path / "bmv2" / "fleet_drain.pcap").messages
+    assert len(np.unique(fleet["src"][fleet["verdict"] > 0])) == 64
 
 
 @needs_netns

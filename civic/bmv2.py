@@ -171,8 +171,11 @@ class BMv2Switch:
 
     def __init__(self, pipeline_dir: str | Path, *, binary: str = SWITCH_BINARY, device_id: int = 0,
                  startup_timeout: float = 20.0, log_path: str | Path | None = None,
-                 ports: tuple[int, int] = (1, 2), padded_bytes: bool = True):
-        self.pipeline_dir = Path(pipeline_dir)
+                 ports: tuple[int, int] = (1, 2), padded_bytes: bool = True, controller: bool = True):
+        """controller=False: start the switch bare (no pipeline, no P4Runtime session held), for
+        another controller such as `civic configure --switch sw.address`."""
+        self.controller = controller
+        self.pipeline_dir = Path(pipeline_dir) if pipeline_dir is not None else None
         self.padded_bytes = padded_bytes   # full-width byte strings: accepted by every PI version
         self.binary = binary
         self.device_id = device_id
@@ -220,7 +223,7 @@ class BMv2Switch:
             raise CivicError("'ip' (iproute2) not found on PATH: needed for the switch's network namespace")
         if os.geteuid() != 0:
             raise CivicError("the BMv2 target needs root (it creates a network namespace and veth pairs)")
-        pipe = p4rt.load_pipeline(self.pipeline_dir)
+        pipe = p4rt.load_pipeline(self.pipeline_dir) if self.controller else None
         ns, ip = self.netns, ["ip"]
         _run(ip + ["netns", "add", ns], "creating namespace")
         self._netns_made = True
@@ -262,6 +265,10 @@ class BMv2Switch:
                                      start_new_session=True, preexec_fn=_die_with_parent)
         self.conn = self._connect()
         self.tx, self.rx = _open_ns_sockets(ns, f"h{self.ports[0]}", f"h{self.ports[1]}")
+        if not self.controller:
+            self.conn.close()
+            self.conn = None
+            return
         self.pipeline = pipe
         self.conn.set_pipeline(pipe.p4info, pipe.device_config, pipe.cookie)
         self.schema = p4rt.P4Schema(pipe.p4info)
@@ -272,10 +279,11 @@ class BMv2Switch:
             if self.proc.poll() is not None:
                 raise CivicError(f"{self.binary} exited with status {self.proc.returncode}: {self._log_tail()}")
             conn = p4rt.SwitchConnection(self.address, self.device_id, election_id=1, timeout=1.0,
-                                         padded_bytes=self.padded_bytes)
+                                         padded_bytes=self.padded_bytes, arbitrate=self.controller)
             try:
                 conn.connect()
-                conn.require_primary()
+                if self.controller:
+                    conn.require_primary()
                 return conn
             except CivicError:
                 conn.close()

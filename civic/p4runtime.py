@@ -778,7 +778,7 @@ def ensure_pipeline(conn: SwitchConnection, pipeline_dir: str | Path | None) -> 
         conn.set_pipeline(pipe.p4info, pipe.device_config, pipe.cookie)
         return P4Schema(pipe.p4info), True
     cur = conn.get_pipeline()
-    if cur is None or not cur.p4info.tables:
+    if cur is None or not (cur.p4info.tables or cur.p4info.actions or cur.p4info.HasField("pkg_info")):
         raise CivicError(f"switch {conn.address} has no pipeline installed; pass --pipeline build/v1model")
     return P4Schema(cur.p4info), False
 

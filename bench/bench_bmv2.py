@@ -1,0 +1,105 @@
+"""BMv2 only: replay msg/s of civic.p4 vs a port-forwarding program, pipelined vs lockstep, configure entries/s.
+
+Every figure is measured in this run, and every ratio is between two figures of
+this run: the forwarding program (bench/p4/forward.p4) is the harness's and
+BMv2's own cost, so civic.p4 / forward.p4 is what CIVIC's pipeline costs.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PLANTS = 64
+
+
+def compile_v1model(src: Path, out: Path) -> Path:
+    out.mkdir()
+    subprocess.run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(out / "civic.json"),
+                    "--p4runtime-files", str(out / "civic.p4info.txtpb"), str(src)], check=True)
+    return out
+
+
+def timed_send(sw, frames, window) -> tuple[float, list]:
+    t0 = time.perf_counter()
+    out = sw.send_frames(frames, window=window)
+    return time.perf_counter() - t0, out
+
+
+def main() -> None:
+    missing = [t for t in ("p4c-bm2-ss", "simple_switch_grpc") if shutil.which(t) is None]
+    if missing or os.geteuid() != 0:
+        why = f"{' and '.join(missing)} not on PATH" if missing else "needs root (network namespace)"
+        print(f"BMv2 replay / configure: skipped ({why})")
+        return
+    from rich.console import Console
+
+    from civic.bmv2 import WINDOW, BMv2Switch
+    from civic.config import load_monitors
+    from civic.pipeline import SwitchModel
+    from civic.train import collect_runs, read_labels, train
+    from civic.wire import read_pcap
+
+    console = Console(stderr=True)
+    training = ROOT / "traces" / "training"
+    config = load_monitors()
+    entries = train(collect_runs(training, read_labels(training / "labels.csv"), config, "lsq"), config, "lsq", True)
+    with tempfile.TemporaryDirectory() as tmp, console.status("BMv2 benchmark") as status:
+        tmp = Path(tmp)
+        civic_build = compile_v1model(ROOT / "p4src" / "v1model" / "civic.p4", tmp / "civic")
+        fwd_build = compile_v1model(ROOT / "bench" / "p4" / "forward.p4", tmp / "forward")
+        path = tmp / "entries.json"
+        entries.save(path)
+        fleet = tmp / "fleet.pcap"
+        subprocess.run([sys.executable, "-m", "civic", "simulate", "drain", "--plants", str(PLANTS), "--seed", "1",
+                        "-o", str(fleet)], check=True, capture_output=True)
+        cap = read_pcap(fleet)
+        frames = [cap.frame(i) for i in range(len(cap))]
+        expect = read_pcap(fleet)
+        expect.set_verdicts(SwitchModel(entries).run(expect.messages))
+
+        status.update("forward.p4")
+        with BMv2Switch(fwd_build) as sw:
+            fwd_s, _ = timed_send(sw, frames, WINDOW)
+        status.update("civic.p4: configure")
+        with BMv2Switch(civic_build) as sw:
+            t0 = time.perf_counter()
+            result = sw.configure(path)
+            install_s = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            again = sw.configure(path)
+            noop_s = time.perf_counter() - t0
+            status.update(f"civic.p4: {len(frames)} messages, {WINDOW} in flight")
+            civic_s, out = timed_send(sw, frames, WINDOW)
+            identical = all(out[i] == expect.frame(i) for i in range(len(frames)))
+            sw.configure(path, reset=True)
+            status.update(f"civic.p4: {len(frames)} messages, lockstep")
+            lock_s, out1 = timed_send(sw, frames, 1)
+            identical = identical and all(out1[i] == expect.frame(i) for i in range(len(frames)))
+    t0 = time.perf_counter()
+    SwitchModel(entries).run(cap.messages)
+    model_s = time.perf_counter() - t0
+
+    n = len(frames)
+    written = result.added + result.modified + result.unchanged
+    checked = again.unchanged
+    assert again.writes == 0, "the re-run wrote to the switch"
+    print(f"{PLANTS}-plant capture, {n} messages; BMv2 output byte-identical with the model: {identical}")
+    print(f"  forward.p4 (baseline), {WINDOW} in flight   {n / fwd_s:>9.0f} msg/s")
+    print(f"  civic.p4, {WINDOW} in flight              {n / civic_s:>9.0f} msg/s   "
+          f"= {fwd_s / civic_s:.2f}x the baseline (pipeline cost {civic_s / fwd_s:.1f}x)")
+    print(f"  civic.p4, lockstep (1 in flight)      {n / lock_s:>9.0f} msg/s   "
+          f"pipelined is {lock_s / civic_s:.2f}x lockstep")
+    print(f"  software model (vectorized)           {n / model_s:>9.0f} msg/s   = {civic_s / model_s:.0f}x BMv2")
+    print(f"configure: full install {written} entries in {install_s:.2f} s = {written / install_s:.0f} entries/s; "
+          f"no-op re-run ({checked} entries read and compared, nothing written) {noop_s:.2f} s "
+          f"= {checked / noop_s:.0f} entries/s")
+
+
+if __name__ == "__main__":
+    main()

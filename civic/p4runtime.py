@@ -37,9 +37,13 @@ from pathlib import Path
 
 import grpc
 from google.protobuf import text_format
-from google.rpc import code_pb2, status_pb2
-from p4.config.v1 import p4info_pb2
-from p4.v1 import p4runtime_pb2, p4runtime_pb2_grpc
+# P4Runtime's protos as finsy ships them, generated for current protobuf (PyPI's p4runtime stubs
+# still need protobuf <= 3.20); the client below is ours
+from finsy.proto import p4i as p4info_pb2
+from finsy.proto import p4r as p4runtime_pb2
+from finsy.proto import p4r_grpc as p4runtime_pb2_grpc
+from finsy.proto import rpc_code as code_pb2
+from finsy.proto import rpc_status as status_pb2
 
 from civic.entries import Entries, load_entries
 from civic.errors import CivicError

@@ -70,7 +70,7 @@ STAND_IN = textwrap.dedent('''\
     if os.environ.get("STAND_IN_FAIL"):
         print("Error: stand-in refuses to start (test)", flush=True); sys.exit(3)
     import grpc
-    from p4.v1 import p4runtime_pb2_grpc
+    from civic.p4runtime import p4runtime_pb2_grpc
     from test_p4runtime import P4RuntimeFixture
     ports = dict(a.split("@") for a in [sys.argv[i + 1] for i, x in enumerate(sys.argv) if x == "-i"])
     addr = sys.argv[sys.argv.index("--grpc-server-addr") + 1]

@@ -19,11 +19,9 @@ from pathlib import Path
 import grpc
 import pytest
 from google.protobuf import any_pb2, text_format
-from google.rpc import code_pb2, status_pb2
-from p4.config.v1 import p4info_pb2
-from p4.v1 import p4runtime_pb2, p4runtime_pb2_grpc
 
 from civic import p4runtime as p4rt
+from civic.p4runtime import code_pb2, p4info_pb2, p4runtime_pb2, p4runtime_pb2_grpc, status_pb2
 from civic.cli import main
 from civic.entries import load_entries, parse_entries
 from civic.errors import CivicError

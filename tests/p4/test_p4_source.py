@@ -531,7 +531,7 @@ def test_fixture_p4info_tables_match_the_program():
     """Keys (name, match kind, width), action refs and their @defaultonly scope, and initial default
     actions of the fixture are what p4c derives from the v1model program; aliases are unique and
     ids carry the P4Runtime type prefix (p4info/p4ids.h: action 0x01, table 0x02, register 0x16)."""
-    from p4.config.v1 import p4info_pb2
+    from civic.p4runtime import p4info_pb2
 
     schema = p4runtime.P4Schema.from_text((ROOT / "tests/fixtures/civic.p4info.txtpb").read_text())
     info = schema.p4info
@@ -564,7 +564,7 @@ def test_fixture_p4info_tables_match_the_program():
 
 def p4info_summary(schema: p4runtime.P4Schema) -> dict:
     """Everything of a P4Info that civic configure and the fixture depend on, ids left out."""
-    from p4.config.v1 import p4info_pb2
+    from civic.p4runtime import p4info_pb2
 
     aname = {a.id: a.name for a in schema.actions.values()}
     out = {}

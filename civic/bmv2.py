@@ -399,6 +399,29 @@ class BMv2Switch:
             self.rx.recv(65535)
 
 
+P4_SOURCE = Path(__file__).resolve().parents[1] / "p4src"
+
+
+def build_pipeline(pipeline_dir: str | Path, source: Path = P4_SOURCE) -> bool:
+    """Compile p4src/v1model/civic.p4 into pipeline_dir when it has no build or an older one.
+
+    Only where the P4 sources are beside the package (a checkout) and p4c-bm2-ss is on PATH;
+    returns whether it compiled. A directory built from elsewhere (no p4src here) is left alone.
+    """
+    d = Path(pipeline_dir)
+    main = source / "v1model" / "civic.p4"
+    if not main.is_file() or shutil.which("p4c-bm2-ss") is None:
+        return False
+    js = d / p4rt.PIPELINE_JSON
+    newest = max(f.stat().st_mtime for sub in ("v1model", "shared") for f in (source / sub).rglob("*.p4"))
+    if js.is_file() and (d / p4rt.PIPELINE_P4INFO[0]).is_file() and js.stat().st_mtime >= newest:
+        return False
+    d.mkdir(parents=True, exist_ok=True)
+    _run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(js),
+          "--p4runtime-files", str(d / p4rt.PIPELINE_P4INFO[0]), str(main)], "compiling the P4 program")
+    return True
+
+
 def output_capture(capture: Capture, frames: list, udp_port: int, plant_prefix: str) -> Capture:
     """The forwarded frames as a Capture with the input frames' timestamps (missing ones left out).
 

@@ -3,11 +3,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rich.progress import Progress
-
 from civic.plant.model import PlantModel
 from civic.plant.procedures import FAULT_CLASSES, append_label, label_row, make_procedure, run_procedure
 from civic.plant.simulate import write_recording
+from civic.report import progress_bar
 
 DRAIN_LEVELS = (6.0, 6.5, 7.0, 7.5, 8.0, 8.5)   # L: start conditions around the paper's 6.5 and 7.5
 
@@ -24,7 +23,7 @@ def simulate_set(folder: str | Path, model: PlantModel, drain_levels=DRAIN_LEVEL
     labels.unlink(missing_ok=True)
     jobs = [("drain", v0) for v0 in drain_levels] + ([("fill", None)] if fill else [])
     total = len(jobs) * 3 * runs
-    with Progress(transient=True) as progress:
+    with progress_bar() as progress:
         task = progress.add_task("simulating", total=total)
         for scenario, v0 in jobs:
             valve = "vm1" if scenario == "drain" else "vm2"

@@ -4,10 +4,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from rich.progress import Progress
 
 from civic.entries import Entries
 from civic.pipeline import SwitchModel
+from civic.report import progress_bar
 from civic.wire import Capture, read_pcap
 
 
@@ -22,7 +22,7 @@ def replay_files(inputs: list[Path], outputs: list[Path], entries: Entries, entr
     """Each input through a freshly reset switch; output frames in order, verdicts written."""
     stats = {"frames": 0, "plant": 0, "evaluated": 0}
     captures = []
-    with Progress(transient=True) as progress:
+    with progress_bar() as progress:
         task = progress.add_task("replaying", total=len(inputs))
         for src, dst in zip(inputs, outputs):
             cap = read_pcap(src, entries.udp_port, entries.plant_prefix)
@@ -42,9 +42,11 @@ def replay_files(inputs: list[Path], outputs: list[Path], entries: Entries, entr
 
 def replay_on_bmv2(captures: list[tuple[Capture, Path]], entries_path: str, pipeline: str) -> tuple[int, int]:
     """All captures through one BMv2 switch (registers reset between captures); write the outputs."""
-    from civic.bmv2 import replay_bmv2
+    from civic.bmv2 import build_pipeline, replay_bmv2
 
-    with Progress(transient=True) as progress:
+    if build_pipeline(pipeline):
+        print(f"compiled p4src/v1model/civic.p4 -> {pipeline}")
+    with progress_bar() as progress:
         task = progress.add_task("BMv2", total=sum(len(c) for c, _ in captures))
         results = replay_bmv2([c for c, _ in captures], entries_path, pipeline,
                               progress=lambda n: progress.update(task, completed=n))

@@ -1,10 +1,17 @@
-"""Rich tables of scores, shared by evaluate and crossval."""
+"""Rich output shared by the commands: score tables (evaluate, crossval) and progress bars."""
 from __future__ import annotations
 
 from rich.console import Console
+from rich.progress import Progress
 from rich.table import Table
 
 console = Console()
+
+
+def progress_bar() -> Progress:
+    """A transient progress bar on stderr: stdout keeps only results (and no blank line when piped)."""
+    err = Console(stderr=True)
+    return Progress(console=err, transient=True, disable=not err.is_terminal)
 
 
 def score_table(title: str, s: dict) -> Table:

@@ -293,3 +293,19 @@ def test_sigterm_during_replay_still_cleans_up(stand_in, tmp_path):
     assert netns not in netns_names() and host_if not in host_links()
     pids = [int(p) for p in pidfile.read_text().split()]
     assert len(pids) == 1 and not alive(pids[0])
+
+
+@pytest.mark.skipif(shutil.which("p4c-bm2-ss") is None, reason="p4c-bm2-ss not on PATH")
+def test_pipeline_is_built_when_missing_or_older_than_the_source(tmp_path):
+    from civic.bmv2 import build_pipeline
+    src = tmp_path / "p4src"
+    shutil.copytree(ROOT / "p4src", src)
+    build = tmp_path / "build"
+    assert build_pipeline(build, src) and (build / "civic.json").is_file()
+    assert (build / "civic.p4info.txtpb").read_text().count("CivicIngress.mon0.classify") >= 1
+    assert not build_pipeline(build, src)                     # up to date: left alone
+    os.utime(src / "tna" / "civic.p4")                         # another target's source: still up to date
+    assert not build_pipeline(build, src)
+    later = (build / "civic.json").stat().st_mtime + 5
+    os.utime(src / "shared" / "headers.p4", (later, later))
+    assert build_pipeline(build, src)

@@ -120,7 +120,7 @@ def run(args) -> int:
 # ---------------------------------------------------------------------------------------
 def _fleet(args, model) -> int:
     """N plants of one scenario in one pcap, one gateway address each, messages interleaved in time."""
-    from rich.progress import Progress
+    from civic.report import progress_bar
 
     from civic.plant.procedures import (FAULT_CLASSES, append_label, apply_faults, label_row, make_procedure,
                                         parse_fault, run_procedure)
@@ -142,7 +142,7 @@ def _fleet(args, model) -> int:
         raise CivicError("--plants closed-loop takes no --v0, --labels, --schedule or --truth")
     valve = {"drain": "vm1", "fill": "vm2"}.get(scenario)
     times, frames, rows = [], [], []
-    with Progress(transient=True) as progress:
+    with progress_bar() as progress:
         task = progress.add_task(f"simulating {n} plants", total=n)
         for k in range(n):
             seed, ip = base_seed + k, int_to_ip(first + k)

@@ -57,6 +57,7 @@ GRPC_PORT = 9559
 CLONE_NEWNET = 0x40000000
 ETH_P_ALL = 0x0003
 PACKET_OUTGOING = 4
+ETH_HEADER = 14      # a veth refuses shorter frames (EINVAL), as any Ethernet link would
 SOL_PACKET, PACKET_AUXDATA = 263, 8
 TP_STATUS_VLAN_VALID, TP_STATUS_VLAN_TPID_VALID = 0x10, 0x40
 # bytes a switch may change in a plant message: UDP checksum and verdict
@@ -348,6 +349,8 @@ class BMv2Switch:
                     progress=None) -> list:
         """Each frame on port 1, its output from port 2 in input order (None when not forwarded).
 
+        Frames shorter than an Ethernet header are not sent (no link carries them): None.
+
         progress: called with the number of frames resolved so far (forwarded or not), now and then.
         """
         frames = [bytes(f) for f in frames]
@@ -358,6 +361,10 @@ class BMv2Switch:
         quiet_since = time.monotonic()
         while sent < len(frames) or pending:
             while sent < len(frames) and len(pending) < window:
+                if len(frames[sent]) < ETH_HEADER:       # no link carries it: not forwarded
+                    sent += 1
+                    done += 1
+                    continue
                 try:
                     self.tx.send(frames[sent])
                 except OSError as exc:
@@ -365,6 +372,8 @@ class BMv2Switch:
                                      f"{exc.strerror}") from None
                 pending.append(sent)
                 sent += 1
+            if not pending:
+                continue
             left = frame_timeout - (time.monotonic() - quiet_since)
             if left > 0 and select.select([self.rx], [], [], left)[0]:
                 while (got := _recv_frame(self.rx)) is not None:

@@ -160,14 +160,14 @@ def test_plumbing_order_missing_and_cleanup(stand_in, tmp_path, made):
     frames.append(bytes(plant(seq=99)) + b"\xee" * 7)              # trailer bytes survive
     frames.append(b"\xee" + frames[1][1:])                          # the stand-in corrupts this one
     write_pcap(tmp_path / "a.pcap", np.arange(len(frames)) * 0.1, frames)
-    write_pcap(tmp_path / "b.pcap", np.arange(3) * 0.1, frames[:3])
+    write_pcap(tmp_path / "b.pcap", np.arange(4) * 0.1, frames[:3] + [b"\x02" * 10])   # + no Ethernet header
     caps = [read_pcap(tmp_path / "a.pcap"), read_pcap(tmp_path / "b.pcap")]
 
     t0 = time.monotonic()
     out = replay_bmv2(caps, entries_json(tmp_path), build, frame_timeout=0.3, startup_timeout=15)
     assert time.monotonic() - t0 < 10     # the corrupted frame costs a short grace, not a timeout
 
-    assert [o.missing for o in out] == [[5], []]
+    assert [o.missing for o in out] == [[5], [3]]
     for o, cap in zip(out, caps):
         for i in range(len(cap)):
             sent = cap.frame(i)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import copy
 import ctypes
+import errno
 import os
 import secrets
 import select
@@ -57,7 +58,9 @@ GRPC_PORT = 9559
 CLONE_NEWNET = 0x40000000
 ETH_P_ALL = 0x0003
 PACKET_OUTGOING = 4
-ETH_HEADER = 14      # a veth refuses shorter frames (EINVAL), as any Ethernet link would
+VETH_MTU = 65535     # the largest a veth takes: jumbo frames of any recording cross
+RECV_MAX = 1 << 17   # > VETH_MTU + headers: a frame is never cut on receive
+ETH_HEADER = 14      # a veth refuses shorter frames (EINVAL) and longer than its MTU (EMSGSIZE)
 SOL_PACKET, PACKET_AUXDATA = 263, 8
 TP_STATUS_VLAN_VALID, TP_STATUS_VLAN_TPID_VALID = 0x10, 0x40
 # bytes a switch may change in a plant message: UDP checksum and verdict
@@ -149,7 +152,7 @@ def _recv_frame(rx: socket.socket) -> tuple[bytes, int] | None:
     have no ethtool switch here); like libpcap, put it back so the frame is what was on the wire.
     """
     try:
-        data, anc, _, addr = rx.recvmsg(65535, socket.CMSG_SPACE(20), socket.MSG_DONTWAIT)
+        data, anc, _, addr = rx.recvmsg(RECV_MAX, socket.CMSG_SPACE(20), socket.MSG_DONTWAIT)
     except BlockingIOError:
         return None
     for level, kind, aux in anc:
@@ -235,7 +238,7 @@ class BMv2Switch:
         for p in self.ports:
             _run(ip + ["-n", ns, "link", "add", "name", f"sw{p}", "type", "veth", "peer", "name", f"h{p}"], "veth")
             for dev in (f"sw{p}", f"h{p}"):
-                _run(ip + ["-n", ns, "link", "set", "dev", dev, "mtu", "9500"], "veth mtu", check=False)
+                _run(ip + ["-n", ns, "link", "set", "dev", dev, "mtu", str(VETH_MTU)], "veth mtu", check=False)
                 _run(ip + ["-n", ns, "link", "set", "dev", dev, "up"], "veth up")
                 if shutil.which("ethtool"):
                     _run(nsx + ["ethtool", "-K", dev, "tx", "off", "rx", "off", "gro", "off", "gso", "off",
@@ -349,7 +352,7 @@ class BMv2Switch:
                     progress=None) -> list:
         """Each frame on port 1, its output from port 2 in input order (None when not forwarded).
 
-        Frames shorter than an Ethernet header are not sent (no link carries them): None.
+        Frames no Ethernet link carries (shorter than its header, longer than the MTU) are None.
 
         progress: called with the number of frames resolved so far (forwarded or not), now and then.
         """
@@ -361,15 +364,17 @@ class BMv2Switch:
         quiet_since = time.monotonic()
         while sent < len(frames) or pending:
             while sent < len(frames) and len(pending) < window:
-                if len(frames[sent]) < ETH_HEADER:       # no link carries it: not forwarded
-                    sent += 1
-                    done += 1
-                    continue
                 try:
+                    if len(frames[sent]) < ETH_HEADER:
+                        raise OSError(errno.EINVAL, "shorter than an Ethernet header")
                     self.tx.send(frames[sent])
                 except OSError as exc:
-                    raise CivicError(f"frame {sent} ({len(frames[sent])} bytes) cannot be sent on a veth: "
-                                     f"{exc.strerror}") from None
+                    if exc.errno not in (errno.EINVAL, errno.EMSGSIZE):
+                        raise CivicError(f"frame {sent} ({len(frames[sent])} bytes) cannot be sent on a veth: "
+                                         f"{exc.strerror}") from None
+                    sent += 1                            # no link carries this frame: not forwarded
+                    done += 1
+                    continue
                 pending.append(sent)
                 sent += 1
             if not pending:
@@ -405,7 +410,7 @@ class BMv2Switch:
 
     def _drain(self) -> None:
         while select.select([self.rx], [], [], 0)[0]:
-            self.rx.recv(65535)
+            self.rx.recv(RECV_MAX)
 
 
 P4_SOURCE = Path(__file__).resolve().parents[1] / "p4src"

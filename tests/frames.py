@@ -86,6 +86,8 @@ def edge_frames() -> list[bytes]:
         bytes(base / IP(src="10.0.1.200", dst="10.0.0.2") / udp / ffff),            # look-alike, outside
         bytes(base / IP(src="10.0.0.201", dst="10.0.0.2") / UDP(sport=50001, dport=50000, chksum=0) / ffff),
         bytes(base / Dot1Q(vlan=5) / ip / udp / PlantMessage(seq=10)),               # VLAN tag
+        bytes(base / ip / udp / Raw(b"j" * 20000)),                                 # jumbo datagram
+        bytes(plant(src="10.0.0.202", seq=11, l3=5000)) + b"\xcc" * 9000,           # jumbo trailer
     ]
 
 

@@ -160,7 +160,8 @@ def test_plumbing_order_missing_and_cleanup(stand_in, tmp_path, made):
     frames.append(bytes(plant(seq=99)) + b"\xee" * 7)              # trailer bytes survive
     frames.append(b"\xee" + frames[1][1:])                          # the stand-in corrupts this one
     write_pcap(tmp_path / "a.pcap", np.arange(len(frames)) * 0.1, frames)
-    write_pcap(tmp_path / "b.pcap", np.arange(4) * 0.1, frames[:3] + [b"\x02" * 10])   # + no Ethernet header
+    write_pcap(tmp_path / "b.pcap", np.arange(5) * 0.1,                  # + no Ethernet header, jumbo frame
+               frames[:3] + [b"\x02" * 10, frames[2] + b"\x00" * 30000])
     caps = [read_pcap(tmp_path / "a.pcap"), read_pcap(tmp_path / "b.pcap")]
 
     t0 = time.monotonic()

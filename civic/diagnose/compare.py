@@ -144,7 +144,7 @@ class EquationError:
         for i, tk in enumerate(model.tanks):
             s = model.find("sensor", self.sensor_of[tk.name])
             y = (self.ys if smoothed else self.raw)[s.name]
-            q = (y - s.offset) / s.gain
+            q = s.invert(y)
             V[:, i] = q * tk.area if s.quantity == "level" else q
             if s.max is not None:
                 tol = max(s.resolution, 1e-9) * 1.5

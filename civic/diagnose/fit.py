@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import copy as _copy
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -29,12 +29,18 @@ from civic.plant.simulate import Recording
 
 from .compare import INVENTORY, INVENTORY_SPREAD, EquationError, SimulationError, fully_measured
 from .locate import Localisation, localise, noise_sigma, robust_sigma
-from .mechanisms import CATALOGUE, Mechanism, coefficient_paths
-
-CAL_SPREAD = 0.05
+from .mechanisms import CATALOGUE, Coefficient, Mechanism, coefficient_paths
+from .mechanisms.coefficient import CAL_SPREAD
 MIN_DBIC = 10.0
 MIN_GAIN = 0.10
 MAX_FINDINGS = 3
+# a rig seen through a free run (some tank unmeasured): the nominal coefficients are refitted
+# jointly with the candidates (no datasheet spread to hold them), more findings may join, the
+# final joint refit is multi-start and every kept finding must survive its ablation
+FREE_RUN_CAL = (0.1, 5.0)
+FREE_RUN_STARTS = 4     # random starts of the joint fits on all rows, besides the warm one
+MIN_ABLATION = 0.01     # a finding stays if removing it raises the held-out RMSE by 1 %
+FREE_RUN_FOLDS = 3      # blocked k-fold CV in time (two-fold without unmeasured tanks)
 
 
 def fast_copy(model: PlantModel) -> PlantModel:
@@ -56,11 +62,20 @@ class Calibration:
     paths: list[tuple[str, str]]
     nominal: list[float]
     spread: float = CAL_SPREAD
+    bounds: tuple[float, float] | None = None   # factor range; None: 1 -+ spread
 
     @classmethod
-    def of(cls, model: PlantModel, spread: float = CAL_SPREAD) -> "Calibration":
+    def of(cls, model: PlantModel, spread: float = CAL_SPREAD, bounds=None) -> "Calibration":
         paths = [(c, p) for c, p in coefficient_paths(model) if float(model.get(p)) > 0]
-        return cls(paths, [float(model.get(p)) for _, p in paths], spread)
+        return cls(paths, [float(model.get(p)) for _, p in paths], spread, bounds)
+
+    @property
+    def lo(self) -> float:
+        return self.bounds[0] if self.bounds else 1 - self.spread
+
+    @property
+    def hi(self) -> float:
+        return self.bounds[1] if self.bounds else 1 + self.spread
 
     def __len__(self):
         return len(self.paths)
@@ -89,7 +104,8 @@ class FitResult:
     model: PlantModel                       # the resulting model
     ok: bool = True
     fold_sse: list = field(default_factory=list)
-    fold_tol: float = 0.0                   # a fold's held-out SSE may rise by this fraction
+    fold_tol: float | None = 0.0            # a fold's held-out SSE may rise by this fraction (None: pooled only)
+    val_rmse: float = float("nan")          # held-out RMSE in signal units (all folds)
 
 
 def significant(res: FitResult, ref: FitResult) -> tuple[bool, float, float]:
@@ -98,7 +114,7 @@ def significant(res: FitResult, ref: FitResult) -> tuple[bool, float, float]:
     held-out SSE may rise by more than MIN_GAIN; see `Problem.folds`)."""
     dbic = res.val_bic - ref.val_bic
     gain = 1 - res.val_sse / max(ref.val_sse, 1e-300)
-    folds = all(a < b * (1 + res.fold_tol) for a, b in zip(res.fold_sse, ref.fold_sse))
+    folds = res.fold_tol is None or all(a < b * (1 + res.fold_tol) for a, b in zip(res.fold_sse, ref.fold_sse))
     return (dbic < -MIN_DBIC and gain > MIN_GAIN and folds), dbic, gain
 
 
@@ -118,6 +134,8 @@ class Diagnosis:
     mismatch: bool = False
     verdict: str = ""
     final_all: FitResult | None = None       # final model refitted on all rows
+    ablation: dict = field(default_factory=dict)   # free run: held-out RMSE with each finding removed
+    integrator: dict = field(default_factory=dict)  # free run: integrator accuracy check
 
 
 class Problem:
@@ -157,8 +175,12 @@ class Problem:
         return R / self.sigma
 
     def fit(self, mechs: list[Mechanism], rows=None, start_cal=None, start_x0=None,
-            starts: list | None = None) -> FitResult:
-        """Fit calibration + the free parameters of `mechs` (+ unmeasured initial volumes) on `rows`."""
+            starts: list | None = None, jitter: int = 0) -> FitResult:
+        """Fit calibration + the free parameters of `mechs` (+ unmeasured initial volumes) on `rows`.
+
+        `starts`: extra starting values of the last mechanism's parameters; `jitter`: that many
+        extra starts drawn at random (calibration factors x/÷ 1.5, mechanism parameters and
+        initial volumes anywhere in the middle of their bounds), seeded: multi-start."""
         rows = self.engine.train if rows is None else rows
         # calibration factors of coefficients a Coefficient candidate owns are not free
         owned = {m.fixed.get("path") for m in mechs if m.name == "coefficient"}
@@ -167,8 +189,8 @@ class Problem:
         cal_start[~free] = 1.0
         nc = int(free.sum())
         sizes = [len(m.names) for m in mechs]
-        lo = [np.full(nc, 1 - self.cal.spread)] + [m.lower for m in mechs]
-        hi = [np.full(nc, 1 + self.cal.spread)] + [m.upper for m in mechs]
+        lo = [np.full(nc, self.cal.lo)] + [m.lower for m in mechs]
+        hi = [np.full(nc, self.cal.hi)] + [m.upper for m in mechs]
         x_init = [cal_start[free]] + [m.x0 for m in mechs]
         xu_names = list(self.unmeasured)
         if xu_names:
@@ -208,6 +230,11 @@ class Problem:
                 xs = x0.copy()
                 xs[last:last + len(s)] = s
                 starts_x.append(np.clip(xs, lo, hi))
+        rng = np.random.default_rng(len(x0))
+        for _ in range(jitter):
+            xs = lo + rng.uniform(0.15, 0.85, len(x0)) * span
+            xs[:nc] = x0[:nc] * np.exp(rng.uniform(-0.4, 0.4, nc))
+            starts_x.append(np.clip(xs, lo, hi))
         best = None
         for xs in starts_x:
             # keep the start strictly inside the bounds (least_squares requirement)
@@ -247,15 +274,18 @@ class Problem:
                 return [self.engine.train, ~self.engine.train]
             return [self.engine.train]
         n = len(self.engine.train)
-        first = np.arange(n) < n // 2
         init = np.arange(n) < (max(1, self.engine.n_init) if self.unmeasured else 0)
-        return [first, ~first | init]     # first: trains on the start (the representative fit)
+        k = FREE_RUN_FOLDS if self.unmeasured else 2
+        block = np.minimum(np.arange(n) * k // n, k - 1)
+        # the fold that holds out the last block trains on the start (the representative fit)
+        return [(block != b) | init for b in range(k - 1, -1, -1)]
 
-    def evaluate(self, mechs: list[Mechanism], start_cal=None, start_x0=None, starts=None) -> FitResult:
+    def evaluate(self, mechs: list[Mechanism], start_cal=None, start_x0=None, starts=None,
+                 jitter: int = 0) -> FitResult:
         """Fit on each fold's training rows; held-out SSE/BIC over all folds' held-out rows."""
         first, held = None, []
         for mask in self.folds():
-            res = self.fit(mechs, rows=mask, start_cal=start_cal, start_x0=start_x0, starts=starts)
+            res = self.fit(mechs, rows=mask, start_cal=start_cal, start_x0=start_x0, starts=starts, jitter=jitter)
             R = self.residuals(res.model, res.x0_extra)
             held.append(R[~mask])
             if first is None:
@@ -263,7 +293,10 @@ class Problem:
         Rv = np.concatenate(held)
         first.fold_sse = [float(np.sum(h ** 2)) for h in held]
         first.fold_tol = MIN_GAIN if len(held) > 1 and isinstance(self.engine, EquationError) else 0.0
+        if self.unmeasured:
+            first.fold_tol = None     # free run: the pooled held-out error decides (one block may hold no event)
         first.val_sse = float(np.sum(Rv ** 2))
+        first.val_rmse = float(np.sqrt(np.mean((Rv * self.sigma) ** 2)))
         first.val_bic = self.bic(Rv, first.k)
         return first
 
@@ -292,7 +325,8 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
              n_init: int = 1) -> Diagnosis:
     """Calibrate, localise, fit candidates, select on held-out data. See the module doc."""
     engine = make_engine(model, rec, window_s=window_s, n_init=n_init)
-    cal = Calibration.of(model)
+    free = isinstance(engine, SimulationError) and bool(engine.unmeasured(model))
+    cal = Calibration.of(model, bounds=FREE_RUN_CAL if free else None)
     prob = Problem(model, rec, engine, cal, np.ones(len(engine.columns)))
     # noise weights: equation error -> robust spread of the raw nominal residual; simulation -> sensor noise
     if isinstance(engine, EquationError):
@@ -323,13 +357,17 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
     chosen: list[Mechanism] = []
     candidates = []
     for fam in CATALOGUE:
+        if free and fam is Coefficient:
+            continue     # the joint refit moves every coefficient already
         candidates.extend(fam.candidates(model, loc))
     total = len(candidates)
     if progress:
         progress(0, total, "candidates")
     planned = total
     done = 0
-    for round_ in range(MAX_FINDINGS):
+    if free:
+        chosen, current = _backward(prob, diag, candidates, base, progress)
+    for round_ in range(0 if free else MAX_FINDINGS):
         results = []
         for cand in candidates:
             if any(type(c) is type(cand) and c.component == cand.component for c in chosen):
@@ -378,9 +416,11 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         diag.verdict = "no significant mismatch: the calibrated nominal model explains the recording"
         diag.model_improved = _refit_all(prob, [], base).model
     elif chosen:
-        final_all = _refit_all(prob, chosen, current)
+        final_all = _refit_all(prob, chosen, current, jitter=FREE_RUN_STARTS if free else 0)
         diag.model_improved = final_all.model
         diag.final_all = final_all
+        if free:
+            diag.integrator = check_integrator(diag.model_improved, prob, final_all)
         diag.verdict = f"{len(chosen)} finding(s) significant on held-out data"
     else:
         diag.model_improved = _refit_all(prob, [], base).model
@@ -401,7 +441,91 @@ def _starts(cand: Mechanism) -> list:
     return []
 
 
-def _refit_all(prob: Problem, mechs: list[Mechanism], start: FitResult) -> FitResult:
+def _refit_all(prob: Problem, mechs: list[Mechanism], start: FitResult, jitter: int = 0) -> FitResult:
     """Final parameters from all rows (training and held out)."""
     rows = np.ones_like(prob.engine.train)
-    return prob.fit(mechs, rows=rows, start_cal=start.cal, start_x0=start.x0_extra)
+    return prob.fit(mechs, rows=rows, start_cal=start.cal, start_x0=start.x0_extra, jitter=jitter)
+
+
+def _general(candidates: list[Mechanism]) -> list[Mechanism]:
+    """One candidate per family and component, the most general variant (a split spill covers
+    all-in and all-out, a sensor characteristic covers an offset); dead times (structural:
+    a recompile per value) stay out of the joint fit."""
+    best: dict = {}
+    for c in candidates:
+        if c.name == "dead_time":
+            continue
+        key = (c.name, c.component)
+        if key not in best or len(c.params) > len(best[key].params):
+            best[key] = c
+    shaped = {c.component for c in best.values() if c.name == "sensor_characteristic"}
+    return [c for (name, comp), c in best.items() if not (name == "sensor_offset" and comp in shaped)]
+
+
+def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: FitResult, progress=None):
+    """Free run: every family's most general candidate fitted jointly (multi-start, all rows),
+    then backward elimination on blocked cross-validation in time: each finding removed and
+    the rest refitted per fold; while some removal does not raise the held-out free-run RMSE
+    by MIN_ABLATION, the least useful finding goes. The last pass is the ablation table;
+    findings are ordered by their contribution."""
+    mechs = _general(candidates)
+    if progress:
+        progress(0, 1, f"joint fit of {len(mechs)} candidates ({FREE_RUN_STARTS + 1} starts)")
+    full = _refit_all(prob, mechs, base, jitter=FREE_RUN_STARTS)
+    # physically negligible in the joint fit: not a finding, and no use refitting it per fold
+    mechs = [m for m in full.mechanisms if not m.negligible(m.values(), prob.model)]
+    start = dict(start_cal=full.cal, start_x0=full.x0_extra)
+    current = prob.evaluate(mechs, **start)
+    first_pass = True
+    while mechs:
+        without = []
+        for i, m in enumerate(mechs):
+            if progress:
+                progress(i, len(mechs), f"cross-validation: without {m.label}")
+            without.append(prob.evaluate(mechs[:i] + mechs[i + 1:], **start))
+        if first_pass:
+            for m, w in zip(mechs, without):
+                diag.tried.append({"candidate": m.label, "val_bic": current.val_bic,
+                                   "dbic": current.val_bic - w.val_bic,
+                                   "val_gain": 1 - current.val_sse / max(w.val_sse, 1e-300),
+                                   "fold_sse": list(current.fold_sse), "base_fold_sse": list(w.fold_sse),
+                                   "parameters": m.report_parameters()})
+            first_pass = False
+        i = int(np.argmin([w.val_rmse for w in without]))
+        if without[i].val_rmse > current.val_rmse * (1 + MIN_ABLATION):
+            break
+        mechs = mechs[:i] + mechs[i + 1:]
+        current = without[i]
+    if not mechs:
+        return [], base
+    order = sorted(range(len(mechs)), key=lambda i: -without[i].val_rmse)
+    chosen = [mechs[i] for i in order]
+    current.mechanisms = list(chosen)
+    for i in order:
+        m, w = mechs[i], without[i]
+        others = [x for x in chosen if x is not m]
+        diag.findings.append({"mechanism": m, "fit": replace(current, mechanisms=others + [m]),
+                              "dbic": current.val_bic - w.val_bic,
+                              "gain": 1 - current.val_sse / max(w.val_sse, 1e-300), "prev": w,
+                              "heldout_rmse_without": w.val_rmse})
+    diag.ablation = {"heldout_rmse": current.val_rmse, "folds": len(prob.folds()),
+                     "without": [{"finding": mechs[i].label, "heldout_rmse": without[i].val_rmse}
+                                 for i in order]}
+    return chosen, current
+
+
+def check_integrator(model: PlantModel, prob: Problem, res: FitResult, tol: float = 1.0) -> dict:
+    """The fixed-step integrator against one with 8x the substeps, from the fitted state: the
+    substeps double (up to 64) until the outputs differ by less than `tol` x the noise sigma."""
+    eng = prob.engine
+    eng.x0_extra = dict(res.x0_extra)
+    while True:
+        fine = model.copy()
+        fine.substeps = 8 * model.substeps
+        P = np.stack([eng.simulate(model)[s] for s in eng.columns], axis=1)
+        F = np.stack([eng.simulate(fine)[s] for s in eng.columns], axis=1)
+        dev = float(np.max(np.abs(P - F) / prob.sigma))
+        if dev < tol or model.substeps >= 64:
+            return {"substeps": model.substeps, "max_deviation_sigma": round(dev, 4),
+                    "reference_substeps": fine.substeps}
+        model.substeps *= 2

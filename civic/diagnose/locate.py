@@ -154,7 +154,7 @@ def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict]
         # noise dips below the band break a long stay at the rim: gaps of a few samples are closed
         at = binary_closing(ys >= top - band, structure=np.ones(7, bool))
         if at.sum() >= max(min_run, 0.01 * n) and _longest_run(at) >= min_run:
-            q = (top - s.offset) / s.gain
+            q = s.invert(top)
             tk = model.tank(s.tank)
             vol = q * tk.area if s.quantity == "level" else q
             tanks.setdefault(s.tank, vol)
@@ -175,7 +175,7 @@ def _rim_masks(model: PlantModel, rec: Recording) -> dict:
         if s.tank in out or not np.isfinite(rim):
             continue
         y = uniform_filter1d(np.asarray(rec.signals[s.name], float), 5, mode="nearest")
-        q = (y - s.offset) / s.gain
+        q = s.invert(y)
         v = q * tk.area if s.quantity == "level" else q
         m = v >= rim - max(RIM_TOL, 0.003 * rim)
         if m.sum() >= 5:
@@ -192,7 +192,7 @@ def _idle_links(model: PlantModel, rec: Recording) -> list[str]:
     for s in model.sensors:
         if s.name in rec.signals and s.gain and s.tank not in vol:
             tk = model.tank(s.tank)
-            q = (np.asarray(rec.signals[s.name], float) - s.offset) / s.gain
+            q = s.invert(np.asarray(rec.signals[s.name], float))
             vol[s.tank] = q if s.quantity == "level" else q / tk.area      # level, dm
     out = []
     for lk in model.links:
@@ -357,7 +357,7 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
         if s.name in rec.signals:
             y = np.asarray(rec.signals[s.name], float)
             loc.signal_span[s.name] = float(np.ptp(y)) or 1.0
-            q = (y - s.offset) / s.gain
+            q = s.invert(y)
             tk = model.tank(s.tank)
             v = q * tk.area if s.quantity == "level" else q
             loc.max_volume[s.tank] = float(np.max(v))

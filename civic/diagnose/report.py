@@ -150,6 +150,8 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
             "heldout_dbic": round(f["dbic"], 2),
             "heldout_sse_reduction": round(f["gain"], 4),
         })
+        if "heldout_rmse_without" in f:
+            findings[-1]["heldout_rmse_without"] = round(f["heldout_rmse_without"], 6)
     skip_rows = skip
     before, sim_before = simulation_rmse(model, rec, n_init, skip_rows)
     after, sim_after = simulation_rmse(diag.model_improved, rec, n_init, skip_rows)
@@ -173,6 +175,13 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         fit["mass_balance_window_s"] = eng.W * eng.dt
     fit["heldout"] = {"rows": int(np.sum(~eng.train)), "bic_calibrated": round(diag.base.val_bic, 2),
                       "bic_final": round(diag.final.val_bic, 2)}
+    if diag.ablation:
+        fit["ablation"] = {"heldout_rmse": round(diag.ablation["heldout_rmse"], 6),
+                           "folds": diag.ablation["folds"],
+                           "without": [{"finding": r["finding"], "heldout_rmse": round(r["heldout_rmse"], 6)}
+                                       for r in diag.ablation["without"]]}
+    if diag.integrator:
+        fit["integrator"] = diag.integrator
     loc = diag.loc
     report = {
         "mismatch": bool(diag.mismatch),
@@ -250,6 +259,15 @@ def print_summary(report: dict, console=None) -> None:
             iv = f["intervals"]
             ivs = ", ".join(f"{a:g}-{b:g}" for a, b in iv[:3]) + (f" (+{len(iv) - 3})" if len(iv) > 3 else "")
             t.add_row(str(i), f["mechanism"], str(f["component"]), params, f"{f['heldout_dbic']:+.1f}", ivs)
+        console.print(t)
+    abl = report["fit"].get("ablation")
+    if abl:
+        t = Table(title=f"ablation: held-out free-run RMSE (blocked {abl['folds']}-fold CV in time, refit per fold)")
+        t.add_column("model")
+        t.add_column("held-out RMSE", justify="right")
+        t.add_row("all findings", f"{abl['heldout_rmse']:.4g}")
+        for r in abl["without"]:
+            t.add_row(f"without {r['finding']}", f"{r['heldout_rmse']:.4g}")
         console.print(t)
     t = Table(title="open-loop simulation RMSE (recorded inputs)")
     t.add_column("signal")

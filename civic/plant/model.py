@@ -10,6 +10,7 @@ import copy
 import math
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
+import numpy as np
 
 from civic.errors import CivicError
 from civic.files import read_toml
@@ -118,6 +119,22 @@ class Sensor:
     max: float | None = None
     wire: str | None = None
     wire_scale: float = 1.0
+    exponent: float = 1.0   # characteristic y = gain * quantity**exponent + offset (1: linear)
+
+    def read(self, q):
+        """The reading for a quantity (before noise, resolution and clip)."""
+        if self.exponent == 1.0:
+            return self.gain * q + self.offset
+        return self.gain * np.maximum(q, 0.0) ** self.exponent + self.offset
+
+    def invert(self, y):
+        """The quantity a reading stands for (inverse of `read`; 0 when the gain is 0)."""
+        if not self.gain:
+            return 0.0 * np.asarray(y, float)
+        q = (np.asarray(y, float) - self.offset) / self.gain
+        if self.exponent == 1.0:
+            return q
+        return np.maximum(q, 0.0) ** (1.0 / self.exponent)
 
 
 _SECTIONS = (("tank", "tanks", Tank), ("pump", "pumps", Pump), ("valve", "valves", Valve),
@@ -162,7 +179,8 @@ def _dump(obj) -> dict:
     out = {}
     for f in fields(obj):
         v = getattr(obj, f.name)
-        if v is None or (isinstance(obj, Overflow) and f.name in ("fraction", "rest") and v == f.default):
+        if v is None or (isinstance(obj, Overflow) and f.name in ("fraction", "rest") and v == f.default) \
+                or (isinstance(obj, Sensor) and f.name == "exponent" and v == f.default):
             continue
         if isinstance(v, Overflow):
             v = _dump(v)
@@ -327,6 +345,9 @@ class PlantModel:
             raise CivicError(f"{where}: a tank may not be called {OUTSIDE!r}")
         valves = {v.name for v in self.valves}
         inputs = set(self.input_names)
+        for s in self.sensors:
+            if not (s.exponent > 0 and math.isfinite(s.exponent)):
+                raise CivicError(f"{where}: sensor {s.name}: exponent must be > 0")
         for t in self.tanks:
             if not (t.area > 0):
                 raise CivicError(f"{where}: tank {t.name}: area must be > 0")

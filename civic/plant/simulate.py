@@ -556,7 +556,7 @@ def measure(model: PlantModel, volumes: np.ndarray, noise: bool = False, rng=Non
         q = volumes[:, i]
         if s.quantity == "level":
             q = q / model.tanks[i].area
-        y = s.gain * q + s.offset
+        y = s.read(q)
         if noise and s.noise_sigma > 0:
             y = y + rng.normal(0.0, s.noise_sigma, size=y.shape)
         if quantize and s.resolution > 0:
@@ -729,7 +729,7 @@ def measured_state(model: PlantModel, signals: dict, average: int = 1) -> dict:
     for s in model.sensors:
         if s.name in signals and s.tank not in x0:
             y = float(np.mean(np.asarray(signals[s.name], float)[:max(1, int(average))]))
-            q = (y - s.offset) / s.gain if s.gain else 0.0
+            q = float(s.invert(y))
             x0[s.tank] = q * model.tank(s.tank).area if s.quantity == "level" else q
     for v in model.valves:
         if v.input in signals:

@@ -117,6 +117,13 @@ def tanks_touching(model: PlantModel, tank: str) -> set[str]:
     return out
 
 
+def free_run(loc) -> bool:
+    """A real rig seen through a free-run simulation (some tank unmeasured): where the shape of
+    the physics (flow laws, sensor maps, actuator thresholds) is a candidate, refitted jointly
+    with the nominal coefficients."""
+    return loc.kind == "simulation" and bool(loc.unmeasured)
+
+
 def sensors_of(model: PlantModel, tank: str) -> list:
     return [s for s in model.sensors if s.tank == tank]
 

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from .base import Mechanism
 
+CAL_SPREAD = 0.05   # datasheet spread: coefficients move this much as calibration, not as a finding
+
 
 def coefficient_paths(model, tanks=None) -> list[tuple[str, str]]:
     """(component, parameter path) of the model's coefficients, optionally near some tanks."""
@@ -42,7 +44,6 @@ class Coefficient(Mechanism):
         return out
 
     def negligible(self, p, model):
-        from civic.diagnose.fit import CAL_SPREAD
         return abs(p["factor"] - 1.0) <= 1.5 * CAL_SPREAD   # within calibration territory
 
     def describe(self, p):

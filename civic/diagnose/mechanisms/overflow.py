@@ -36,7 +36,7 @@ class Overflow(Mechanism):
         for s in model.sensors:
             v = loc.sensor_plateaus.get(s.name)
             if v is not None and s.max is not None and v >= s.max - 1.5 * max(s.resolution, 1e-9) and s.gain:
-                q = (v - s.offset) / s.gain
+                q = s.invert(v)
                 clipped.setdefault(s.tank, q * model.tank(s.tank).area if s.quantity == "level" else q)
         for tk in model.tanks:
             if tk.name in loc.plateaus:

@@ -1,0 +1,60 @@
+"""Flow law: a link's outflow shape differs from pure Torricelli, q = c*h**0.5.
+
+Two forms real rigs show: a free flow exponent (`exponent`, q = c*h**n: a short pipe,
+laminar or turbulent losses) or an added linear term (`linear`, q = c*sqrt(h) + c_lin*h:
+a laminar leak path beside the orifice), written as a parallel orifice link with exponent
+1 (existing schema). Candidates (free-run diagnoses of a rig with unmeasured tanks) for every gravity link.
+"""
+from __future__ import annotations
+
+from civic.plant.model import Link
+
+from .base import Mechanism, free_run
+
+EXPONENT_BOUNDS = (0.15, 2.0)
+
+
+class FlowLaw(Mechanism):
+    name = "flow_law"
+
+    def edit(self, model, p):
+        lk = model.find("link", self.component)
+        if "exponent" in p:
+            n = float(p["exponent"])
+            lk.exponent = n if n != 0.5 else 0.5 + 1e-9   # a fitted 0.5 keeps the compiled structure
+        else:
+            name = f"{lk.name}_lin"
+            while any(x.name == name for x in model.links):
+                name += "_"
+            model.links.append(Link(name=name, from_=lk.from_, to=lk.to, coeff=float(p["linear"]),
+                                    law="orifice", exponent=1.0, valve=lk.valve, closure=lk.closure,
+                                    min_level=lk.min_level))
+
+    @property
+    def label(self) -> str:
+        return f"{self.name}({self.component}, {self.fixed['form']})"
+
+    @classmethod
+    def candidates(cls, model, loc):
+        out = []
+        if not free_run(loc):
+            return out
+        for lk in model.links:
+            if lk.law != "orifice" or lk.from_ not in loc.tanks or lk.min_level > 0:
+                continue
+            out.append(cls(lk.name, {"exponent": lk.exponent + 0.02}, {"exponent": EXPONENT_BOUNDS},
+                           {"form": "exponent"}))
+            out.append(cls(lk.name, {"linear": 0.02 * lk.coeff}, {"linear": (0.0, 2.0 * lk.coeff)},
+                           {"form": "linear"}))
+        return out
+
+    def negligible(self, p, model):
+        lk = model.find("link", self.component)
+        if "exponent" in p:
+            return abs(p["exponent"] - lk.exponent) < 0.03
+        return p["linear"] < 0.01 * lk.coeff
+
+    def describe(self, p):
+        if "exponent" in p:
+            return f"q = c*h**{p['exponent']:.3g} through {self.component} (Torricelli: 0.5)"
+        return f"q = c*sqrt(h) + {p['linear']:.4g}*h through {self.component}"

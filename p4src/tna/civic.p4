@@ -39,11 +39,53 @@
 #include "include/parser.p4"
 #include "include/control/forwarding.p4"
 #include "include/control/plant_lookup.p4"
-#include "include/control/signal_select.p4"
 #include "include/control/const_mul.p4"
-#include "include/control/slope.p4"
 #include "include/control/monitor.p4"
 #include "include/control/verdict.p4"
+
+// Every 32-bit arithmetic field of a monitor slot in one 32-bit container:
+// Tofino ALU operations take at most two PHV sources, and a field split
+// over two 16-bit containers makes an add or subtract need four.
+@pa_container_size("ingress", "meta.mon0.x32", 32)
+@pa_container_size("ingress", "meta.mon0.old", 32)
+@pa_container_size("ingress", "meta.mon0.d", 32)
+@pa_container_size("ingress", "meta.mon0.e", 32)
+@pa_container_size("ingress", "meta.mon0.t0", 32)
+@pa_container_size("ingress", "meta.mon0.t1", 32)
+@pa_container_size("ingress", "meta.mon0.t2", 32)
+@pa_container_size("ingress", "meta.mon0.t3", 32)
+@pa_container_size("ingress", "meta.mon0.acc", 32)
+@pa_container_size("ingress", "meta.mon0.s0", 32)
+@pa_container_size("ingress", "meta.mon0.t", 32)
+@pa_container_size("ingress", "meta.mon0.s1", 32)
+@pa_container_size("ingress", "meta.mon0.s0n", 32)
+@pa_container_size("ingress", "meta.mon0.slope_key", 32)
+@pa_container_size("ingress", "meta.mon1.x32", 32)
+@pa_container_size("ingress", "meta.mon1.old", 32)
+@pa_container_size("ingress", "meta.mon1.d", 32)
+@pa_container_size("ingress", "meta.mon1.e", 32)
+@pa_container_size("ingress", "meta.mon1.t0", 32)
+@pa_container_size("ingress", "meta.mon1.t1", 32)
+@pa_container_size("ingress", "meta.mon1.t2", 32)
+@pa_container_size("ingress", "meta.mon1.t3", 32)
+@pa_container_size("ingress", "meta.mon1.acc", 32)
+@pa_container_size("ingress", "meta.mon1.s0", 32)
+@pa_container_size("ingress", "meta.mon1.t", 32)
+@pa_container_size("ingress", "meta.mon1.s1", 32)
+@pa_container_size("ingress", "meta.mon1.s0n", 32)
+@pa_container_size("ingress", "meta.mon1.slope_key", 32)
+// One-bit flags that tables of different slots write in the same stage
+// get containers of their own (two tables cannot write one container in
+// one stage); so do the two class codes of the bridge header.
+@pa_solitary("ingress", "meta.monitored")
+@pa_solitary("ingress", "meta.in_prefix")
+@pa_solitary("ingress", "meta.gap")
+@pa_solitary("ingress", "meta.mon0.q")
+@pa_solitary("ingress", "meta.mon0.q_cmd")
+@pa_solitary("ingress", "meta.mon1.q")
+@pa_solitary("ingress", "meta.mon1.q_cmd")
+@pa_container_size("ingress", "hdr.bridge.cls0", 8)
+@pa_container_size("ingress", "hdr.bridge.cls1", 8)
 
 control CivicIngress(inout ig_headers_t hdr,
                      inout ig_metadata_t meta,
@@ -65,19 +107,24 @@ control CivicIngress(inout ig_headers_t hdr,
     Monitor(MON1_WINDOW, MON1_RING_LEN, MON1_LSQ == 1, MON1_WINDOW % 2 == 0,
             MON1_R_MUL, MON1_W1_MUL) mon1;
 
+    // Every conditional below guards one table. bf-p4c places the tables of
+    // two sibling if-blocks one block after the other on Tofino (a block's
+    // tables are reached through next-table chaining), which would put
+    // mon1's chain behind mon0's; flat single-table conditions let the two
+    // slots' chains share stages.
     apply {
         forwarding.apply(ig_intr_md.ingress_port, ig_tm_md, ig_dprsr_md);
 
-        if (hdr.plant.isValid()) {
-            plant_lookup.apply(hdr, meta);
-            if (meta.monitored == 1 && meta.in_prefix == 1) {
-                meta.plant = 1;
-                hdr.bridge.plant = 1;
-                seq_gap.apply(hdr, meta);
-            }
-            mon0.apply(hdr.plant, meta.plant, meta.slot, meta.gap, meta.mon0, hdr.bridge.cls0);
-            mon1.apply(hdr.plant, meta.plant, meta.slot, meta.gap, meta.mon1, hdr.bridge.cls1);
+        // monitored_port, plant_prefix (only read the headers; their hits
+        // count only for a complete plant message)
+        plant_lookup.apply(hdr, meta);
+        if (hdr.plant.isValid() && meta.monitored == 1 && meta.in_prefix == 1) {
+            seq_gap.apply(hdr, meta);
         }
+        mon0.apply(hdr.plant, meta.monitored, meta.in_prefix, meta.slot, meta.gap,
+                   meta.mon0, hdr.bridge.cls0);
+        mon1.apply(hdr.plant, meta.monitored, meta.in_prefix, meta.slot, meta.gap,
+                   meta.mon1, hdr.bridge.cls1);
     }
 }
 
@@ -92,7 +139,7 @@ control CivicEgress(inout eg_headers_t hdr,
 
     apply {
         if (meta.bridge.plant == 1 && hdr.plant.isValid()) {
-            verdict.apply(hdr, meta.bridge.verdict);
+            verdict.apply(hdr, meta.bridge.cls1, meta.bridge.cls0);
         }
     }
 }

@@ -6,27 +6,22 @@
 
 #include "../../shared/headers.p4"
 
-// Bridged from ingress to egress in front of the Ethernet header. Ingress
-// writes the two class codes into their own fields; egress reads the same
-// three bytes as {flags, 16-bit verdict word}, so the verdict word is
-// assembled by the layout, not by an ALU:
-//   verdict = 12 zero bits ++ cls1 ++ cls0
-header bridge_ig_h {
+// Bridged from ingress to egress in front of the Ethernet header. Each
+// slot's class code has a byte of its own: two tables may not write one
+// PHV container in the same stage, and the two slots' classify tables run
+// in the same stage. Egress assembles the verdict word 12 zero bits ++ cls1
+// ++ cls0 from them (verdict.p4).
+header bridge_h {
     bit<7>  pad;
     bit<1>  plant;          // this frame is a plant message
-    bit<12> verdict_hi;     // always 0 (slots 2..7 do not exist on TNA)
+    bit<6>  pad1;
     bit<2>  cls1;
+    bit<6>  pad0;
     bit<2>  cls0;
 }
 
-header bridge_eg_h {
-    bit<7>  pad;
-    bit<1>  plant;
-    bit<16> verdict;
-}
-
 struct ig_headers_t {
-    bridge_ig_h bridge;
+    bridge_h    bridge;
     ethernet_t  ethernet;
     ipv4_t      ipv4;
     udp_t       udp;
@@ -40,40 +35,43 @@ struct eg_headers_t {
     plant_msg_t plant;
 }
 
-// Working state of one monitor slot for the packet being processed; every
-// field is written by one ALU operation (Tofino does one operation per
-// field per stage), see the stage plan in p4src/README.md.
+// Working state of one monitor slot for the packet being processed. Every
+// field is written by one ALU operation in one stage (see the stage plan in
+// tna/civic.p4). Ingress has 48 32-bit PHV containers for everything, so
+// the temporaries are few and reused: t0..t3 hold the shift-and-add terms
+// of R * old (stages 3-4) and later of (W - 1) * s0n (stages 6-7), acc
+// their sums, and d is reused for 2 * s1 once s0n is known. Fields a
+// slot's constants do not need are never written and take no PHV.
 struct monitor_md_t {
     bit<1>  enabled;        // set_config
     bit<2>  signal;
     bit<8>  window;         // set_config parameters that TNA ignores
     bit<8>  ring_len;
     bit<1>  lsq;
-    bit<16> x;              // the monitored signal
+    bit<16> x;              // the monitored signal (also the class table's level)
     bit<32> x32;            // x, zero-extended
-    bit<32> x32_b;          // x + 2^31
-    bit<1>  q;              // precondition holds
+    bit<1>  q;              // precondition (l1..l4) holds
+    bit<1>  q_cmd;          // precondition_cmd (p1, v1, v2) holds
     bit<8>  run;            // run counter after this message
     bit<8>  ptr;            // ring pointer before this message
     bit<32> old;            // ring cell overwritten by x
-    bit<32> d;              // x - old
-    bit<32> d_b;            // x - old + 2^31
-    bit<32> r_old;          // R * old
+    bit<32> d;              // x - old; later 2 * s1
+    bit<32> e;              // d + 2^31 (lsq, W even) or the unbiased slope (W odd)
+    bit<32> t0;             // shift-and-add terms and partial sums (const_mul.p4)
+    bit<32> t1;
+    bit<32> t2;
+    bit<32> t3;
+    bit<32> acc;            // R * old, later (W - 1) * s0n
     bit<32> s0;             // s0 before the update
     bit<32> t;              // s0 - R * old
     bit<32> s1;             // s1 after the update
-    bit<32> s0n;            // s0 after the update (+ 2^31, see slope.p4)
-    bit<32> prod;           // (W - 1) * s0n
-    bit<32> s1x2;           // 2 * s1
-    bit<32> slope;
+    bit<32> s0n;            // s0 after the update (+ 2^31 when W is even, see monitor.p4)
     bit<32> slope_key;      // slope XOR 2^31
-    bit<16> level;          // = x
 }
 
 struct ig_metadata_t {
     bit<1>       monitored;  // monitored_port hit
     bit<1>       in_prefix;  // plant_prefix hit
-    bit<1>       plant;      // monitored and in_prefix: a plant message
     bit<8>       slot;       // ipv4.src_addr[7:0]
     bit<32>      seq_m1;     // seq - 1
     bit<1>       gap;
@@ -82,7 +80,7 @@ struct ig_metadata_t {
 }
 
 struct eg_metadata_t {
-    bridge_eg_h bridge;
+    bridge_h    bridge;
 }
 
 #endif  /* _CIVIC_TNA_METADATA_P4_ */

@@ -30,12 +30,12 @@ parser CivicIngressParser(packet_in pkt,
         hdr.bridge.setValid();
         hdr.bridge.pad = 0;
         hdr.bridge.plant = 0;
-        hdr.bridge.verdict_hi = 0;
+        hdr.bridge.pad1 = 0;
+        hdr.bridge.pad0 = 0;
         hdr.bridge.cls1 = CLASS_NOT_EVALUATED;
         hdr.bridge.cls0 = CLASS_NOT_EVALUATED;
         meta.monitored = 0;
         meta.in_prefix = 0;
-        meta.plant = 0;
         meta.gap = 0;
         transition parse_ethernet;
     }

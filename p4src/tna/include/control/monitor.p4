@@ -20,18 +20,30 @@
  *    reads, modifies and writes it in the stateful ALU (run has three
  *    RegisterActions for the three mutually exclusive cases, of which one
  *    executes);
+ *  - one ALU operation per field per stage: every dependent step is its
+ *    own @hidden table (CIVIC_STEP, const_mul.p4);
  *  - ring cells are 32 bit (values < 2^16): the RegisterAction returns the
  *    old value straight into 32-bit arithmetic. Cell of (slot, ptr) =
  *    slot ++ ptr[6:0] = slot * 128 + ptr, an identity hash of the two.
  *
  * config and precondition only read the message: they run for every
- * complete plant message (is_plant or not) so that the dependency chain
- * starts in stage 0; the registers are touched only when is_plant == 1
- * and the slot is enabled.
+ * complete plant message so that the dependency chain starts in stage 0;
+ * the registers are touched only for a plant message (monitored port and
+ * plant prefix) when the slot is enabled.
  *
- * Dependent steps (stage plan in tna/civic.p4 and p4src/README.md):
- *   ptr -> ring (old) -> d, R*old (3 stages) -> s0 -> t -> s1 -> slope
- *   -> classify
+ * Dependent steps (stage plan in tna/civic.p4 and p4src/README.md), lsq:
+ *   1 x, ptr  2 ring (old), run  3 d, d_b, R*old shifts  4 s0, R*old adds
+ *   5 R*old, s0n  6 t, (W-1)*s0n shifts  7 s1, adds  8 prod, 2*s1
+ *   9 slope_key  10 classify
+ * endpoint: 1 x, ptr  2 ring, run  3 d_b = slope_key  4 classify (the sums
+ * are still kept, in the stages that follow, as pipeline.md requires).
+ *
+ * Slope bias: slope_key = slope XOR 2^31 = slope + 2^31 (mod 2^32).
+ *   endpoint: slope_key = (x + 2^31) - old = d_b, one subtraction;
+ *   lsq, W even: W - 1 is odd, so (W - 1) * (s0' + 2^31) = (W - 1) * s0'
+ *     + 2^31 (mod 2^32); s0n = s0 + d_b = s0' + 2^31 carries the bias
+ *     through the product and slope_key = prod - 2 * s1' directly;
+ *   lsq, W odd: slope = prod - 2 * s1', then one more step for the XOR.
  * set_class writes the class straight into the slot's field of the bridge
  * header (cls_out); a slot that is not evaluated keeps the 0 the ingress
  * parser put there.
@@ -39,7 +51,8 @@
 #ifndef _CIVIC_TNA_MONITOR_P4_
 #define _CIVIC_TNA_MONITOR_P4_
 
-control Monitor(in plant_msg_t msg, in bit<1> is_plant, in bit<8> slot, in bit<1> gap,
+control Monitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_prefix,
+                in bit<8> slot, in bit<1> gap,
                 inout monitor_md_t m, inout bit<2> cls_out)
                (bit<8> c_window, bit<8> c_ring_len, bool c_lsq, bool c_bias_in_product,
                 bit<8> r_a0, bit<8> r_a1, bit<8> r_a2, bit<8> r_a3, bit<4> r_used, bit<4> r_negs,
@@ -52,9 +65,9 @@ control Monitor(in plant_msg_t msg, in bit<1> is_plant, in bit<8> slot, in bit<1
     Register<bit<32>, bit<8>>(MAX_PLANTS, 0) s1;
 
     Hash<bit<15>>(HashAlgorithm_t.IDENTITY) ring_index;
-    SignalSelect() signal_select;
-    ConstMul(r_a0, r_a1, r_a2, r_a3, r_used, r_negs) r_mul;
-    Slope(c_lsq, c_bias_in_product, w_a0, w_a1, w_a2, w_a3, w_used, w_negs) slope;
+    // x zero-extended to 32 bit: an identity hash carries a 16-bit field
+    // into a 32-bit container (ALU operations do not mix container sizes)
+    Hash<bit<32>>(HashAlgorithm_t.IDENTITY) widen;
 
     // ------------------------------------------------------------ config
     action set_config(bit<1> enabled, bit<2> signal, bit<8> window,
@@ -83,15 +96,19 @@ control Monitor(in plant_msg_t msg, in bit<1> is_plant, in bit<8> slot, in bit<1
         m.q = 0;
     }
 
+    // pipeline.md's precondition is one conjunction of seven 16-bit ranges.
+    // bf-p4c places at most six 16-bit range keys in one Tofino table (the
+    // seventh does not fit the ternary input crossbar), so TNA splits it:
+    // precondition keeps the levels l1..l4 and its names, precondition_cmd
+    // takes the commands p1 v1 v2; q = both hit a qualifying entry. For one
+    // entry per table (civic train writes one conjunction) this is the same
+    // predicate.
     table precondition {
         key = {
             msg.l1: range @name("l1");
             msg.l2: range @name("l2");
             msg.l3: range @name("l3");
             msg.l4: range @name("l4");
-            msg.p1: range @name("p1");
-            msg.v1: range @name("v1");
-            msg.v2: range @name("v2");
         }
         actions = {
             qualify;
@@ -101,15 +118,44 @@ control Monitor(in plant_msg_t msg, in bit<1> is_plant, in bit<8> slot, in bit<1
         size = TNA_PRECONDITION_TABLE_SIZE;
     }
 
+    action qualify_cmd() {
+        m.q_cmd = 1;
+    }
+
+    action disqualify_cmd() {
+        m.q_cmd = 0;
+    }
+
+    table precondition_cmd {
+        key = {
+            msg.p1: range @name("p1");
+            msg.v1: range @name("v1");
+            msg.v2: range @name("v2");
+        }
+        actions = {
+            qualify_cmd;
+            disqualify_cmd;
+        }
+        default_action = disqualify_cmd();
+        size = TNA_PRECONDITION_TABLE_SIZE;
+    }
+
     // ------------------------------------------------------------ classification
     action set_class(bit<2> cls) {
         cls_out = cls;
     }
 
+    // bf-p4c range-matches keys of at most 4 PHV nibbles (16 bit): the
+    // 32-bit slope_key of pipeline.md is matched as its two halves. An
+    // entry slope [lo, hi] becomes up to three entries (hi halves equal:
+    // one; else the first high half with [lo_lo, 0xFFFF], the high halves
+    // strictly between with [0, 0xFFFF], the last with [0, hi_lo]), which
+    // match exactly the same keys and stay disjoint (p4src/README.md).
     table classify {
         key = {
-            m.slope_key: range @name("slope_key");
-            m.level: range @name("level");
+            m.slope_key[31:16]: range @name("slope_key_hi");
+            m.slope_key[15:0]: range @name("slope_key_lo");
+            m.x: range @name("level");
         }
         actions = {
             set_class;
@@ -159,7 +205,7 @@ control Monitor(in plant_msg_t msg, in bit<1> is_plant, in bit<8> slot, in bit<1
     RegisterAction<bit<32>, bit<15>, bit<32>>(ring) ring_swap = {
         void apply(inout bit<32> value, out bit<32> rv) {
             rv = value;
-            value = m.x32;
+            value = (bit<32>)m.x;
         }
     };
 
@@ -179,37 +225,91 @@ control Monitor(in plant_msg_t msg, in bit<1> is_plant, in bit<8> slot, in bit<1
         }
     };
 
+    // ------------------------------------------------------------ one-operation steps
+    // x = l1..l4 by signal (SIGNAL_L1..L4), zero-extended
+    CIVIC_SELECT4(select_x, m.signal,
+                  m.x = msg.l1;, m.x = msg.l2;, m.x = msg.l3;, m.x = msg.l4;)
+    // x zero-extended into a 32-bit container (in the stage of the ring
+    // access, which takes the 16-bit x directly)
+    CIVIC_STEP(widen_x, m.x32 = widen.get({m.x});)
+    // d = x - old
+    CIVIC_STEP(diff, m.d = m.x32 - m.old;)
+    // R * old
+    CIVIC_CONST_MUL(r, m.old, m.acc, r_a0, r_a1, r_a2, r_a3, r_used, r_negs)
+    // endpoint: slope_key = (x - old) XOR 2^31; lsq, W even: e = d + 2^31
+    CIVIC_STEP(key_endpoint, m.slope_key = m.d ^ SLOPE_BIAS;)
+    CIVIC_STEP(diff_b, m.e = m.d ^ SLOPE_BIAS;)
+    // t = s0 - R * old, the increment of s1
+    CIVIC_STEP(s1_inc, m.t = m.s0 - m.acc;)
+    // s0n = s0' (+ 2^31 when the bias rides in the product)
+    CIVIC_STEP(s0_new_b, m.s0n = m.s0 + m.e;)
+    CIVIC_STEP(s0_new, m.s0n = m.s0 + m.d;)
+    // (W - 1) * s0n
+    CIVIC_CONST_MUL(p, m.s0n, m.acc, w_a0, w_a1, w_a2, w_a3, w_used, w_negs)
+    // 2 * s1 (into d, which is no longer needed)
+    CIVIC_STEP(s1_twice, m.d = m.s1 << 1;)
+    CIVIC_STEP(key_lsq_b, m.slope_key = m.acc - m.d;)
+    CIVIC_STEP(slope_lsq, m.e = m.acc - m.d;)
+    CIVIC_STEP(key_bias, m.slope_key = m.e ^ SLOPE_BIAS;)
+
+    // Every conditional guards one table (see CivicIngress); `on` is the
+    // condition under which the slot touches its registers.
     apply {
         config.apply();
-        signal_select.apply(msg, m);
         precondition.apply();
+        precondition_cmd.apply();
+        // x is computed for every frame; it is used only when `on`
+        select_x.apply();           // SIGNAL_L1..L4 = 0..3
+        widen_x.apply();
 
-        if (is_plant == 1 && m.enabled == 1) {
-            if (m.q == 0) {
-                m.run = run_clear.execute(slot);
-            } else if (gap == 1) {
-                m.run = run_restart.execute(slot);
-            } else {
-                m.run = run_count.execute(slot);
-            }
-
+#define ON (msg.isValid() && monitored == 1 && in_prefix == 1 && m.enabled == 1)
+        if (ON) {
             m.ptr = ptr_advance.execute(slot);
+        }
+        if (ON && (m.q == 0 || m.q_cmd == 0)) {
+            m.run = run_clear.execute(slot);
+        } else if (ON && gap == 1) {
+            m.run = run_restart.execute(slot);
+        } else if (ON) {
+            m.run = run_count.execute(slot);
+        }
+        if (ON) {
             m.old = ring_swap.execute(ring_index.get({slot, m.ptr[6:0]}));
-
-            m.d = m.x32 - m.old;
-            m.d_b = m.x32_b - m.old;
-            r_mul.apply(m.old, m.r_old);
-
+        }
+        // the arithmetic runs for every frame and has no effect unless `on`
+        diff.apply();
+        CIVIC_CONST_MUL_APPLY(r, r_used)
+        if (ON) {
             m.s0 = s0_add.execute(slot);
-            m.t = m.s0 - m.r_old;
+        }
+        if (!c_lsq) {
+            key_endpoint.apply();
+        } else if (c_bias_in_product) {
+            diff_b.apply();
+        }
+        s1_inc.apply();
+        if (ON) {
             m.s1 = s1_add.execute(slot);
-
-            slope.apply(m);
-
-            if (m.run >= c_window) {
-                classify.apply();
+        }
+        if (c_lsq) {
+            if (c_bias_in_product) {
+                s0_new_b.apply();
+            } else {
+                s0_new.apply();
+            }
+            CIVIC_CONST_MUL_APPLY(p, w_used)
+            s1_twice.apply();
+            if (c_bias_in_product) {
+                key_lsq_b.apply();
+            } else {
+                slope_lsq.apply();
+                key_bias.apply();
             }
         }
+        if (ON && m.run >= c_window) {
+            classify.apply();
+        }
+#undef ON
     }
 }
 

@@ -59,7 +59,7 @@ control PlantLookup(in ig_headers_t hdr, inout ig_metadata_t meta) {
     }
 }
 
-control SeqGap(in ig_headers_t hdr, inout ig_metadata_t meta) {
+control SeqGap(inout ig_headers_t hdr, inout ig_metadata_t meta) {
 
     @name(".CivicIngress.last_seq")
     Register<bit<32>, bit<8>>(MAX_PLANTS, 0) last_seq;
@@ -77,6 +77,7 @@ control SeqGap(in ig_headers_t hdr, inout ig_metadata_t meta) {
 
     apply {
         meta.gap = check_and_store.execute(meta.slot);
+        hdr.bridge.plant = 1;
     }
 }
 

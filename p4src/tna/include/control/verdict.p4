@@ -8,43 +8,74 @@
  * hdr.plant.verdict and hdr.udp.checksum still hold the values it arrived
  * with.
  *
- * The 32-bit sum and two folds of pipeline.md section 5 are done as two
- * 16-bit ones' complement additions with end-around carry:
- *   u = ~HC (+) ~m ;  v = u (+) m'    where a (+) b = a + b + carry
- * (a + b wrapped below a means there was a carry). Ones' complement
- * addition is associative, and a (+) b is 0 only for a = b = 0, so v equals
- * the doubly folded 32-bit sum exactly; tests/p4/test_p4_source.py checks
- * this transcription against civic.wire.incremental_checksum.
- *   HC' = ~v, or 0xFFFF when ~v == 0; HC = 0 stays 0.
+ * The checksum is pipeline.md section 5 literally, one ALU operation per
+ * step (CIVIC_STEP, const_mul.p4), in 32 bits:
+ *   s  = (~HC & 0xFFFF) + (~m & 0xFFFF) + m'  = (0x1FFFE - HC) + (m' - m)
+ *   s  = (s & 0xFFFF) + (s >> 16), twice
+ *   HC' = ~s & 0xFFFF, or 0xFFFF when that is 0 (s == 0xFFFF); HC = 0 stays 0.
+ * (m' - m may wrap below 0; the sum is exact modulo 2^32 and s < 2^18.)
+ * An earlier version added 16-bit words with end-around carry detected by
+ * `u < n_hc`; bf-p4c would need a two-field comparison in a gateway for
+ * that, the folds need none.
  */
 #ifndef _CIVIC_TNA_VERDICT_P4_
 #define _CIVIC_TNA_VERDICT_P4_
 
-control Verdict(inout eg_headers_t hdr, in bit<16> m_new) {
-    bit<16> n_hc;
-    bit<16> n_m;
-    bit<16> u;
-    bit<16> v;
+control Verdict(inout eg_headers_t hdr, in bit<2> cls1, in bit<2> cls0) {
+    bit<32> hc;
+    bit<32> m_old;
+    bit<32> m_n;
+    bit<32> a;
+    bit<32> b;
+    bit<32> s;
+    bit<32> lo;
+    bit<32> hi;
+
+    bit<32> s_n;
+    // 16-bit fields into 32-bit containers and back through identity
+    // hashes (ALU operations do not mix container sizes)
+    Hash<bit<32>>(HashAlgorithm_t.IDENTITY) widen_hc;
+    Hash<bit<32>>(HashAlgorithm_t.IDENTITY) widen_m_old;
+    Hash<bit<32>>(HashAlgorithm_t.IDENTITY) widen_m_new;
+    Hash<bit<16>>(HashAlgorithm_t.IDENTITY) narrow;
+    // m' = 12 zero bits ++ cls1 ++ cls0, assembled by identity hashes
+    Hash<bit<16>>(HashAlgorithm_t.IDENTITY) verdict_word;
+
+    // (one hash result per table: 32 bits of immediate data each)
+    CIVIC_STEP(widen_1, hc = widen_hc.get({hdr.udp.checksum});)
+    CIVIC_STEP(widen_2, m_old = widen_m_old.get({hdr.plant.verdict});)
+    CIVIC_STEP(widen_3, m_n = widen_m_new.get({cls1, cls0});)
+    CIVIC_STEP(terms, a = 0x1FFFE - hc; b = m_n - m_old;)
+    CIVIC_STEP(sum, s = a + b;)
+    CIVIC_STEP(split1, lo = s & 0xFFFF; hi = s >> 16;)
+    CIVIC_STEP(fold1, s = lo + hi;)
+    CIVIC_STEP(split2, lo = s & 0xFFFF; hi = s >> 16;)
+    CIVIC_STEP(fold2, s = lo + hi;)
+    CIVIC_STEP(invert, s_n = ~s;)
+    CIVIC_STEP(write_ffff, hdr.udp.checksum = 0xFFFF; hdr.plant.verdict = verdict_word.get({cls1, cls0});)
+    CIVIC_STEP(write_sum, hdr.udp.checksum = narrow.get({s_n[15:0]}); hdr.plant.verdict = verdict_word.get({cls1, cls0});)
+    CIVIC_STEP(write_verdict, hdr.plant.verdict = verdict_word.get({cls1, cls0});)
 
     apply {
         if (hdr.udp.checksum != 0) {
-            n_hc = ~hdr.udp.checksum;
-            n_m = ~hdr.plant.verdict;
-            u = n_hc + n_m;
-            if (u < n_hc) {
-                u = u + 1;
-            }
-            v = u + m_new;
-            if (v < u) {
-                v = v + 1;
-            }
-            if (v == 0xFFFF) {
-                hdr.udp.checksum = 0xFFFF;      // ~v == 0 is sent as 0xFFFF
+            widen_1.apply();
+            widen_2.apply();
+            widen_3.apply();
+            terms.apply();
+            sum.apply();
+            split1.apply();
+            fold1.apply();
+            split2.apply();
+            fold2.apply();
+            invert.apply();
+            if (s == 0xFFFF) {
+                write_ffff.apply();     // ~s == 0 is sent as 0xFFFF
             } else {
-                hdr.udp.checksum = ~v;
+                write_sum.apply();
             }
+        } else {
+            write_verdict.apply();
         }
-        hdr.plant.verdict = m_new;
     }
 }
 

@@ -100,11 +100,11 @@ control CivicIngress(inout ig_headers_t hdr,
 
     // Monitor slot k is the instance monK of Monitor: its tables, actions
     // and registers are CivicIngress.monK.* (see monitor.p4). Arguments:
-    // W, R, estimator, bias-in-product (W even), R and W - 1 as
+    // W, R, estimator, the bias added to s0' (lsq), R and W - 1 as
     // shift-and-add terms (include/config.p4).
-    Monitor(MON0_WINDOW, MON0_RING_LEN, MON0_LSQ == 1, MON0_WINDOW % 2 == 0,
+    Monitor(MON0_WINDOW, MON0_RING_LEN, MON0_LSQ == 1, MON0_S0_BIAS,
             MON0_R_MUL, MON0_W1_MUL) mon0;
-    Monitor(MON1_WINDOW, MON1_RING_LEN, MON1_LSQ == 1, MON1_WINDOW % 2 == 0,
+    Monitor(MON1_WINDOW, MON1_RING_LEN, MON1_LSQ == 1, MON1_S0_BIAS,
             MON1_R_MUL, MON1_W1_MUL) mon1;
 
     // Every conditional below guards one table. bf-p4c places the tables of

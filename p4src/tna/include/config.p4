@@ -21,6 +21,10 @@
  * digit form). tests/p4/test_p4_source.py checks that each sum equals its
  * constant and that R = W (lsq) or W - 1 (endpoint).
  *
+ * MONk_S0_BIAS = 2^(31 - k), 2^k the largest power of two dividing W - 1
+ * (lsq only): the slope key's bias 2^31 rides through the product,
+ * (W - 1) * (s0' + MONk_S0_BIAS) = (W - 1) * s0' + 2^31 (mod 2^32).
+ *
  * Defaults: the two monitors of configs/monitors.toml with the lsq
  * estimator (civic train's default).
  */
@@ -38,6 +42,9 @@
 #define MON0_R_MUL 4, 2, 0, 0, 0x3, 0x0
 // W - 1 = 19 = 2^4 + 2^1 + 2^0
 #define MON0_W1_MUL 4, 1, 0, 0, 0x7, 0x0
+// 2^(31 - k) with 2^k the largest power of two dividing W - 1, so that
+// (W - 1) * MON0_S0_BIAS = 2^31 (mod 2^32): W - 1 = 19 is odd, k = 0
+#define MON0_S0_BIAS 0x80000000
 
 // mon1: fill_t1, lsq, W = 90, R = W = 90
 #define MON1_WINDOW 90
@@ -47,6 +54,8 @@
 #define MON1_R_MUL 6, 4, 3, 1, 0xF, 0x0
 // W - 1 = 89 = 2^6 + 2^4 + 2^3 + 2^0
 #define MON1_W1_MUL 6, 4, 3, 0, 0xF, 0x0
+// W - 1 = 89 is odd: k = 0
+#define MON1_S0_BIAS 0x80000000
 
 // Range tables are TCAM with range expansion on Tofino: keep the class
 // tables smaller than on v1model (a trained class table has tens of rows).

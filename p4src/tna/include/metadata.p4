@@ -56,7 +56,7 @@ struct monitor_md_t {
     bit<8>  ptr;            // ring pointer before this message
     bit<32> old;            // ring cell overwritten by x
     bit<32> d;              // x - old; later 2 * s1
-    bit<32> e;              // d + 2^31 (lsq, W even) or the unbiased slope (W odd)
+    bit<32> e;              // d + B (lsq; B = 2^(31 - k), see monitor.p4)
     bit<32> t0;             // shift-and-add terms and partial sums (const_mul.p4)
     bit<32> t1;
     bit<32> t2;
@@ -65,7 +65,7 @@ struct monitor_md_t {
     bit<32> s0;             // s0 before the update
     bit<32> t;              // s0 - R * old
     bit<32> s1;             // s1 after the update
-    bit<32> s0n;            // s0 after the update (+ 2^31 when W is even, see monitor.p4)
+    bit<32> s0n;            // s0 after the update, + B
     bit<32> slope_key;      // slope XOR 2^31
 }
 

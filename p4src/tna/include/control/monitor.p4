@@ -40,10 +40,10 @@
  *
  * Slope bias: slope_key = slope XOR 2^31 = slope + 2^31 (mod 2^32).
  *   endpoint: slope_key = (x + 2^31) - old = d_b, one subtraction;
- *   lsq, W even: W - 1 is odd, so (W - 1) * (s0' + 2^31) = (W - 1) * s0'
- *     + 2^31 (mod 2^32); s0n = s0 + d_b = s0' + 2^31 carries the bias
- *     through the product and slope_key = prod - 2 * s1' directly;
- *   lsq, W odd: slope = prod - 2 * s1', then one more step for the XOR.
+ *   lsq: with B = c_s0_bias = 2^(31 - k), 2^k the largest power of two
+ *     dividing W - 1 (config.p4), (W - 1) * B = 2^31 (mod 2^32), so
+ *     s0n = s0 + (d + B) = s0' + B carries the bias through the product
+ *     and slope_key = (W - 1) * s0n - 2 * s1' directly, for every W.
  * set_class writes the class straight into the slot's field of the bridge
  * header (cls_out); a slot that is not evaluated keeps the 0 the ingress
  * parser put there.
@@ -54,7 +54,7 @@
 control Monitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_prefix,
                 in bit<8> slot, in bit<1> gap,
                 inout monitor_md_t m, inout bit<2> cls_out)
-               (bit<8> c_window, bit<8> c_ring_len, bool c_lsq, bool c_bias_in_product,
+               (bit<8> c_window, bit<8> c_ring_len, bool c_lsq, bit<32> c_s0_bias,
                 bit<8> r_a0, bit<8> r_a1, bit<8> r_a2, bit<8> r_a3, bit<4> r_used, bit<4> r_negs,
                 bit<8> w_a0, bit<8> w_a1, bit<8> w_a2, bit<8> w_a3, bit<4> w_used, bit<4> w_negs) {
 
@@ -236,21 +236,18 @@ control Monitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_prefix,
     CIVIC_STEP(diff, m.d = m.x32 - m.old;)
     // R * old
     CIVIC_CONST_MUL(r, m.old, m.acc, r_a0, r_a1, r_a2, r_a3, r_used, r_negs)
-    // endpoint: slope_key = (x - old) XOR 2^31; lsq, W even: e = d + 2^31
+    // endpoint: slope_key = (x - old) XOR 2^31; lsq: e = d + B
     CIVIC_STEP(key_endpoint, m.slope_key = m.d ^ SLOPE_BIAS;)
-    CIVIC_STEP(diff_b, m.e = m.d ^ SLOPE_BIAS;)
+    CIVIC_STEP(diff_b, m.e = m.d + c_s0_bias;)
     // t = s0 - R * old, the increment of s1
     CIVIC_STEP(s1_inc, m.t = m.s0 - m.acc;)
-    // s0n = s0' (+ 2^31 when the bias rides in the product)
+    // s0n = s0' + B
     CIVIC_STEP(s0_new_b, m.s0n = m.s0 + m.e;)
-    CIVIC_STEP(s0_new, m.s0n = m.s0 + m.d;)
     // (W - 1) * s0n
     CIVIC_CONST_MUL(p, m.s0n, m.acc, w_a0, w_a1, w_a2, w_a3, w_used, w_negs)
     // 2 * s1 (into d, which is no longer needed)
     CIVIC_STEP(s1_twice, m.d = m.s1 << 1;)
     CIVIC_STEP(key_lsq_b, m.slope_key = m.acc - m.d;)
-    CIVIC_STEP(slope_lsq, m.e = m.acc - m.d;)
-    CIVIC_STEP(key_bias, m.slope_key = m.e ^ SLOPE_BIAS;)
 
     // Every conditional guards one table (see CivicIngress); `on` is the
     // condition under which the slot touches its registers.
@@ -282,29 +279,20 @@ control Monitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_prefix,
         if (ON) {
             m.s0 = s0_add.execute(slot);
         }
-        if (!c_lsq) {
-            key_endpoint.apply();
-        } else if (c_bias_in_product) {
+        if (c_lsq) {
             diff_b.apply();
+        } else {
+            key_endpoint.apply();
         }
         s1_inc.apply();
         if (ON) {
             m.s1 = s1_add.execute(slot);
         }
         if (c_lsq) {
-            if (c_bias_in_product) {
-                s0_new_b.apply();
-            } else {
-                s0_new.apply();
-            }
+            s0_new_b.apply();
             CIVIC_CONST_MUL_APPLY(p, w_used)
             s1_twice.apply();
-            if (c_bias_in_product) {
-                key_lsq_b.apply();
-            } else {
-                slope_lsq.apply();
-                key_bias.apply();
-            }
+            key_lsq_b.apply();
         }
         if (ON && m.run >= c_window) {
             classify.apply();

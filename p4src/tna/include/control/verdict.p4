@@ -52,11 +52,12 @@ control Verdict(inout eg_headers_t hdr, in bit<2> cls1, in bit<2> cls0) {
     CIVIC_STEP(split2, lo = s & 0xFFFF; hi = s >> 16;)
     CIVIC_STEP(fold2, s = lo + hi;)
     CIVIC_STEP(invert, s_n = ~s;)
-    CIVIC_STEP(write_ffff, hdr.udp.checksum = 0xFFFF; hdr.plant.verdict = verdict_word.get({cls1, cls0});)
-    CIVIC_STEP(write_sum, hdr.udp.checksum = narrow.get({s_n[15:0]}); hdr.plant.verdict = verdict_word.get({cls1, cls0});)
+    CIVIC_STEP(write_ffff, hdr.udp.checksum = 0xFFFF;)
+    CIVIC_STEP(write_sum, hdr.udp.checksum = narrow.get({s_n[15:0]});)
     CIVIC_STEP(write_verdict, hdr.plant.verdict = verdict_word.get({cls1, cls0});)
 
     apply {
+        // reads hdr.plant.verdict before write_verdict replaces it (stage order)
         if (hdr.udp.checksum != 0) {
             widen_1.apply();
             widen_2.apply();
@@ -73,9 +74,8 @@ control Verdict(inout eg_headers_t hdr, in bit<2> cls1, in bit<2> cls0) {
             } else {
                 write_sum.apply();
             }
-        } else {
-            write_verdict.apply();
         }
+        write_verdict.apply();
     }
 }
 

@@ -434,7 +434,7 @@ def _starts(cand: Mechanism) -> list:
     if cand.name == "overflow" and "volume" in cand.params:
         lo, hi = cand.bounds["volume"]
         rest = [cand.params[k] for k in cand.names if k != "volume"]   # e.g. the split fraction
-        return [[lo + f * (hi - lo)] + rest for f in (0.3, 0.55)]
+        return [[lo + f * (hi - lo)] + rest for f in (0.1, 0.3, 0.55)]
     if cand.name == "dead_time":
         lo, hi = cand.bounds["dead_time"]
         return [[lo + f * (hi - lo)] for f in (0.25, 0.6)]
@@ -468,10 +468,24 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
     the rest refitted per fold; while some removal does not raise the held-out free-run RMSE
     by MIN_ABLATION, the least useful finding goes. The last pass is the ablation table;
     findings are ordered by their contribution."""
-    mechs = _general(candidates)
+    # a free rim is the flattest parameter: that candidate goes last, its extra starts spread the rim
+    mechs = sorted(_general(candidates), key=lambda c: bool(_starts(c)) and c.name == "overflow")
+    every = np.ones_like(prob.engine.train)
+    # each candidate alone first: the joint fit also starts from the best single one's values
+    singles = []
+    for i, m in enumerate(mechs):
+        if progress:
+            progress(i, len(mechs) + 1, f"alone: {m.label}")
+        singles.append(prob.fit([m], rows=every, start_cal=base.cal, start_x0=base.x0_extra, starts=_starts(m)))
     if progress:
-        progress(0, 1, f"joint fit of {len(mechs)} candidates ({FREE_RUN_STARTS + 1} starts)")
-    full = _refit_all(prob, mechs, base, jitter=FREE_RUN_STARTS)
+        progress(len(mechs), len(mechs) + 1, f"joint fit of {len(mechs)} candidates (multi-start)")
+    fits = [prob.fit(mechs, rows=every, start_cal=base.cal, start_x0=base.x0_extra,
+                     starts=_starts(mechs[-1]) if mechs else None, jitter=FREE_RUN_STARTS)]
+    if singles:
+        k = int(np.argmin([r.train_sse for r in singles]))
+        warm = [singles[k].mechanisms[0] if j == k else m for j, m in enumerate(mechs)]
+        fits.append(prob.fit(warm, rows=every, start_cal=singles[k].cal, start_x0=singles[k].x0_extra))
+    full = min(fits, key=lambda r: r.train_sse)
     # physically negligible in the joint fit: not a finding, and no use refitting it per fold
     mechs = [m for m in full.mechanisms if not m.negligible(m.values(), prob.model)]
     start = dict(start_cal=full.cal, start_x0=full.x0_extra)

@@ -40,9 +40,22 @@ def test_cascaded_tanks_round_trip(tmp_path, capsys):
     rep = json.loads(rep_path.read_text())
     assert rep["mismatch"] is True
     names = [(f["mechanism"], f["component"]) for f in rep["findings"]]
-    assert ("overflow", "T1") in names
+    assert ("overflow", "T1") in names and any(m == "flow_law" for m, _ in names)
+    spill = next(f for f in rep["findings"] if (f["mechanism"], f["component"]) == ("overflow", "T1"))
+    assert 0.0 < spill["parameters"]["fraction"] < 1.0      # part into T2, the rest out
     before, after = rep["fit"]["before"]["rmse"]["y_V"], rep["fit"]["after"]["rmse"]["y_V"]
-    assert after < 0.9 * before
+    assert after <= 0.15 < before
+    # held-out evidence: every kept finding's removal raises the blocked-CV free-run RMSE,
+    # and the findings come ordered by that contribution
+    abl = rep["fit"]["ablation"]
+    without = [r["heldout_rmse"] for r in abl["without"]]
+    assert all(w > abl["heldout_rmse"] for w in without) and without == sorted(without, reverse=True)
+    assert [r["finding"].split("(")[0] for r in abl["without"]] == [f["mechanism"] for f in rep["findings"]]
+    assert rep["fit"]["integrator"]["max_deviation_sigma"] < 1.0
+    capsys.readouterr()
+    rc = main(["simulate", "--model", str(improved), "--inputs", str(DATA), "--init-samples", "50"])
+    line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("y_V")][0]
+    assert rc == 0 and float(line.split()[1]) <= 0.15
     # the improved model runs in the simulator on another experiment
     other = tmp_path / "other.csv"
     _other_inputs(other, improved)
@@ -74,4 +87,6 @@ def test_split_overflow_fraction_is_fitted():
     top = diag.findings[0]
     assert top["mechanism"].label == "overflow(T1->T2|outside)"
     p = diag.final_all.mechanisms[0].values()
-    assert abs(p["fraction"] - 0.5) < 0.1 and abs(p["volume"] - 9.0) < 0.5, p
+    # the joint refit frees the nominal coefficients: the rim trades against T1's scale (not
+    # checked), the share that falls into T2 does not
+    assert abs(p["fraction"] - 0.5) < 0.1, p

@@ -129,6 +129,26 @@ def test_batch_equals_scalar(plant):
         np.testing.assert_allclose(cm.run(U, x0, P[:, j]), Xb[:, :, j], atol=1e-12)
 
 
+def test_sensor_characteristic_reads_inverts_and_round_trips(tmp_path):
+    """y = gain*level**exponent + offset: the simulator reads through it, the initial state
+    inverts it, the model file keeps it (and leaves the linear default out)."""
+    m = single_tank(coeff=0.0, gain=0.3)
+    s = m.sensors[0]
+    s.quantity, s.gain, s.offset, s.exponent = "level", 0.8, 1.5, 1.4
+    t = np.arange(200) * 0.1
+    r = simulate(m, t, {"u": np.ones(200)}, {"A": 0.2})
+    h = (0.2 + 0.3 * t) / 2.0
+    np.testing.assert_allclose(r["y"], 0.8 * h ** 1.4 + 1.5, rtol=1e-9)
+    from civic.plant.simulate import initial_state
+    assert initial_state(m, {"y": r["y"]})["A"] == pytest.approx(0.2, rel=1e-9)
+    m.to_toml(tmp_path / "m.toml")
+    assert PlantModel.from_toml(tmp_path / "m.toml").sensors[0].exponent == 1.4
+    assert "exponent" not in single_tank().to_toml().split("[[sensor]]")[1]
+    s.exponent = 0.0
+    with pytest.raises(CivicError, match="exponent must be > 0"):
+        m.validate()
+
+
 def test_sensor_saturation_offset_and_level():
     m = single_tank(coeff=0.0, gain=0.3)
     m.sensors[0].quantity = "level"

@@ -19,13 +19,16 @@ ROOT = Path(__file__).resolve().parents[2]
 TNA_MONITORS = 2
 MAX_STAGES = 12          # Tofino 1, per pipe
 
-pytestmark = pytest.mark.skipif(shutil.which("bf-p4c") is None,
-                                reason="bf-p4c not on PATH (open-source Tofino backend; "
-                                       "export PATH=/opt/p4/bin:$PATH, see p4src/README.md)")
+needs_bf_p4c = pytest.mark.skipif(shutil.which("bf-p4c") is None,
+                                  reason="bf-p4c not on PATH (open-source Tofino backend; "
+                                         "export PATH=/opt/p4/bin:$PATH, see p4src/README.md)")
 
 
 @pytest.fixture(scope="module")
 def build(tmp_path_factory) -> Path:
+    if shutil.which("bf-p4c") is None:
+        pytest.skip("bf-p4c not on PATH (open-source Tofino backend; "
+                    "export PATH=/opt/p4/bin:$PATH, see p4src/README.md)")
     out = tmp_path_factory.mktemp("tna")
     cmd = ["bf-p4c", "--target", "tofino", "--arch", "tna", "-g", "-I", str(ROOT / "p4src"),
            "-o", str(out), str(ROOT / "p4src/tna/civic.p4")]
@@ -56,11 +59,13 @@ def bfrt_tables(build: Path) -> dict[str, dict]:
     return {t["name"]: t for t in json.loads((build / "bfrt.json").read_text())["tables"]}
 
 
+@needs_bf_p4c
 def test_binary_is_written(build):
     assert (build / "pipe/tofino.bin").stat().st_size > 0
     assert (build / "bfrt.json").is_file() and (build / "pipe/context.json").is_file()
 
 
+@needs_bf_p4c
 def test_fits_in_twelve_stages(build):
     rows = resource_rows(build)
     used = [int(r["Stage Number"]) for r in rows if int(r["Logical TableID"]) > 0]
@@ -74,6 +79,7 @@ def test_fits_in_twelve_stages(build):
     assert mau["srams"] > 0 and mau["tcams"] > 0
 
 
+@needs_bf_p4c
 def test_stateful_alus_per_stage(build):
     """At most 4 register actions (stateful ALUs) per stage; 11 registers in all."""
     rows = resource_rows(build)
@@ -81,6 +87,7 @@ def test_stateful_alus_per_stage(build):
     assert max(salus) <= 4 and sum(salus) == 1 + 5 * TNA_MONITORS, salus
 
 
+@needs_bf_p4c
 def test_control_plane_objects(build):
     tables = bfrt_tables(build)
     want = {"pipe.CivicIngress.forward": ["ingress_port"],
@@ -109,6 +116,7 @@ def test_control_plane_objects(build):
         assert actions == {f"CivicIngress.mon{k}.set_class"}
 
 
+@needs_bf_p4c
 def test_registers(build):
     tables = bfrt_tables(build)
     want = {"pipe.CivicIngress.last_seq": (256, 32)}
@@ -124,6 +132,7 @@ def test_registers(build):
         assert t["data"][0]["singleton"]["type"]["width"] == width, name
 
 
+@needs_bf_p4c
 def test_ring_index_puts_the_slot_in_the_high_bits(build):
     """Ring cell of (slot, ptr) = slot * 128 + ptr: the identity hash {slot, ptr[6:0]} puts its
     first element in the high bits (civic configure reads / clears cells at slot * 128 + i)."""
@@ -134,3 +143,96 @@ def test_ring_index_puts_the_slot_in_the_high_bits(build):
         assert m, f"mon{k}: ring index hash layout not found in civic.bfa"
         p_lo, p_hi, s_lo, s_hi = map(int, m.groups())
         assert (p_hi - p_lo, s_lo - p_lo, s_hi - s_lo) == (6, 7, 7)
+
+
+# ---------------------------------------------------------------- the arithmetic as compiled
+def config_defines() -> dict[str, tuple[int, ...]]:
+    text = (ROOT / "p4src/tna/include/config.p4").read_text()
+    return {m.group(1): tuple(int(v, 0) for v in m.group(2).split(","))
+            for m in re.finditer(r"^#define[ \t]+(\w+)[ \t]+([0-9xA-Fa-f, \t]+?)[ \t]*(?://.*)?$", text, re.MULTILINE)}
+
+
+def s0_bias(window: int) -> int:
+    """2^(31 - k), 2^k the largest power of two dividing W - 1."""
+    k = ((window - 1) & -(window - 1)).bit_length() - 1
+    return 1 << (31 - k)
+
+
+def csd(c: int) -> tuple[int, ...]:
+    """c as config.p4 MUL arguments (canonical signed digits, most significant first)."""
+    digits, i = [], 0
+    while c:
+        if c & 1:
+            d = 2 - (c & 3)
+            digits.append((i, d))
+            c -= d
+        c >>= 1
+        i += 1
+    digits.sort(reverse=True)
+    a = [sh for sh, _ in digits] + [0] * (4 - len(digits))
+    return (*a, (1 << len(digits)) - 1, sum(1 << k for k, (_, d) in enumerate(digits) if d < 0))
+
+
+def const_mul_steps(v: int, a0, a1, a2, a3, used, negs) -> int:
+    """CIVIC_CONST_MUL / CIVIC_CONST_MUL_APPLY (const_mul.p4) step by step, bit<32>."""
+    m32 = 0xFFFFFFFF
+    if used == 1:
+        return (v << a0) & m32
+    t0, t1 = (v << a0) & m32, (v << a1) & m32
+    t2 = (v << a2) & m32 if used & 4 else 0
+    t3 = (v << a3) & m32 if used & 8 else 0
+    if used == 3:
+        return (t0 - t1) & m32 if negs & 2 else (t0 + t1) & m32
+    t0 = (t0 - t1) & m32 if negs & 2 else (t0 + t1) & m32
+    if used & 8:
+        t2 = {4: t3 - t2, 8: t2 - t3}.get(negs & 12, t2 + t3) & m32
+        return (t0 - t2) & m32 if negs & 12 == 12 else (t0 + t2) & m32
+    return (t0 - t2) & m32 if negs & 4 else (t0 + t2) & m32
+
+
+def test_configured_slots_are_consistent():
+    c = config_defines()
+    for k in range(c["TNA_MONITORS"][0]):
+        w, r, lsq = c[f"MON{k}_WINDOW"][0], c[f"MON{k}_RING_LEN"][0], c[f"MON{k}_LSQ"][0]
+        if lsq:
+            assert c[f"MON{k}_S0_BIAS"][0] == s0_bias(w), f"MON{k}_S0_BIAS"
+        for v in (1, 0xFFFF, 0x7FFFFFFF, 0xFFFFFFFF):
+            assert const_mul_steps(v, *c[f"MON{k}_R_MUL"]) == (v * r) & 0xFFFFFFFF
+            assert const_mul_steps(v, *c[f"MON{k}_W1_MUL"]) == (v * (w - 1)) & 0xFFFFFFFF
+
+
+@pytest.mark.parametrize("window,lsq", [(20, True), (90, True), (21, True), (2, True), (3, True),
+                                        (97, True), (128, True), (20, False), (2, False), (127, False)])
+def test_slope_key_steps_match_the_model(window, lsq):
+    """monitor.p4's steps (TNA) against the software model: registers and slope_key."""
+    from civic.pipeline import data_collection
+    from civic.pipeline import slope as model_slope
+
+    m32, bias = 0xFFFFFFFF, 0x80000000
+    r = window if lsq else window - 1
+    b = s0_bias(window) if lsq else 0
+    ring = data_collection.RingState(1, r)
+    ring_t, ptr, s0, s1 = [0] * 128, 0, 0, 0
+    rng = __import__("random").Random(window)
+    for _ in range(3 * window + 5):
+        x = rng.choice((0, 65535, rng.randrange(65536)))
+        old_model = ring.push(0, x)
+        p, ptr = ptr, 0 if ptr == r - 1 else ptr + 1          # ptr_advance
+        old, ring_t[p] = ring_t[p], x                          # ring_swap
+        assert old == old_model
+        d = (x - old) & m32                                    # diff
+        acc = const_mul_steps(old, *csd(r))                    # R * old
+        s0_old, s0 = s0, (s0 + d) & m32                        # s0_add
+        t = (s0_old - acc) & m32                               # s1_inc
+        s1 = (s1 + t) & m32                                    # s1_add
+        assert (s0, s1) == (int(ring.s0[0]), int(ring.s1[0]))
+        if lsq:
+            e = (d + b) & m32                                  # diff_b
+            s0n = (s0_old + e) & m32                           # s0_new_b
+            prod = const_mul_steps(s0n, *csd(window - 1))      # (W - 1) * s0n
+            key = (prod - ((s1 << 1) & m32)) & m32             # s1_twice, key_lsq_b
+            want = int(model_slope.lsq(ring.s0[0], ring.s1[0], window))
+        else:
+            key = d ^ bias                                     # key_endpoint
+            want = int(model_slope.endpoint(x, old_model))
+        assert key == (want & m32) ^ bias

@@ -1,33 +1,38 @@
 /*
  * CIVIC -- P4_16 data plane for Tofino (TNA), same behaviour as
  * p4src/v1model/civic.p4 within Tofino's rules. Build:
- *   bf-p4c --target tofino --arch tna p4src/tna/civic.p4
+ *   bf-p4c --target tofino --arch tna -I p4src p4src/tna/civic.p4   (make p4-tna)
  *
- * Differences from v1model (details in p4src/README.md):
+ * Differences from v1model (details in p4src/README.md, "The TNA variant"):
  *  - 2 monitor slots (TNA_MONITORS); each slot's window, ring length and
  *    estimator are compile-time constants (include/config.p4), because
  *    Tofino multiplies only by constants (shift-and-add, const_mul.p4);
- *  - every register is read-modified-written by one RegisterAction;
+ *  - every register is read-modified-written by one RegisterAction, and
+ *    every dependent ALU step is its own @hidden table (CIVIC_STEP);
+ *  - precondition is split in two tables (precondition: l1..l4,
+ *    precondition_cmd: p1 v1 v2) and classify matches slope_key as two
+ *    16-bit halves: bf-p4c's range-match limits;
  *  - the verdict word and the UDP checksum are written in egress
  *    (control/verdict.p4), from a 3-byte bridge header;
  *  - ring cells are 32 bit wide.
- * P4Info names: the same as v1model for what exists here
- * (CivicIngress.forward, ..., CivicIngress.mon0.*, CivicIngress.mon1.*).
+ * Control-plane names: those of v1model (BF-RT: with the prefix "pipe."),
+ * plus monK.precondition_cmd / qualify_cmd / disqualify_cmd.
  *
- * Ingress stage plan (one dependent step per stage; both slots in parallel):
- *   0  monitored_port, plant_prefix, forward, monK.config,
- *      monK.precondition, seq - 1
- *   1  last_seq (gap), ptr, x
- *   2  ring (old), run
- *   3  d = x - old, d_b, R*old shifts         (endpoint key = d_b)
- *   4  s0, R*old adds                         (endpoint: classify)
- *   5  R*old, s0' = s0 + d_b
- *   6  t = s0 - R*old, (W-1)*s0' shifts
- *   7  s1, (W-1)*s0' adds
- *   8  (W-1)*s0' + bias, 2*s1
- *   9  slope_key = prod - 2*s1
+ * Ingress stage plan as bf-p4c 9.13.4 placed it (both slots in each stage):
+ *   0  forward, monitored_port, plant_prefix, seq - 1, monK.config,
+ *      monK.precondition_cmd, mon1.precondition
+ *   1  last_seq (gap), ptr, x (by signal), mon0.precondition
+ *   2  ring (old), x widened to 32 bit
+ *   3  run, d = x - old, R*old shifts           (endpoint: slope_key)
+ *   4  s0, R*old adds, e = d + B
+ *   5  R*old, s0n = s0 + e, t (mon0)
+ *   6  t = s0 - R*old, s1 (mon0), (W-1)*s0n shifts
+ *   7  s1 (mon1), (W-1)*s0n adds, 2*s1
+ *   8  (W-1)*s0n
+ *   9  slope_key = (W-1)*s0n - 2*s1
  *  10  classify
- * Egress: verdict word from the bridge header, checksum (~6 stages).
+ *  11  free
+ * Egress: verdict word from the bridge header, checksum (stages 0-8).
  */
 #include <core.p4>
 #include <tna.p4>

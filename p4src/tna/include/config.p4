@@ -19,7 +19,8 @@
  *     C = sum over i with bit i of `used` set of (-1 if bit i of `negs`) * 2^ai
  * term 0 must be positive. Four terms cover every C <= 128 (canonical signed
  * digit form). tests/p4/test_p4_source.py checks that each sum equals its
- * constant and that R = W (lsq) or W - 1 (endpoint).
+ * constant and that R = W (lsq) or W - 1 (endpoint);
+ * tests/p4/test_tna_compile.py checks MONk_S0_BIAS.
  *
  * MONk_S0_BIAS = 2^(31 - k), 2^k the largest power of two dividing W - 1
  * (lsq only): the slope key's bias 2^31 rides through the product,

@@ -26,20 +26,21 @@
  *    old value straight into 32-bit arithmetic. Cell of (slot, ptr) =
  *    slot ++ ptr[6:0] = slot * 128 + ptr, an identity hash of the two.
  *
- * config and precondition only read the message: they run for every
- * complete plant message so that the dependency chain starts in stage 0;
- * the registers are touched only for a plant message (monitored port and
- * plant prefix) when the slot is enabled.
+ * config, the precondition tables and the arithmetic steps only read the
+ * message and write this slot's metadata: they run for every frame so that
+ * the dependency chain starts in stage 0 and no if-block holds more than
+ * one table. The registers and classify are touched only for a plant
+ * message (valid, monitored port, plant prefix) when the slot is enabled.
  *
  * Dependent steps (stage plan in tna/civic.p4 and p4src/README.md), lsq:
- *   1 x, ptr  2 ring (old), run  3 d, d_b, R*old shifts  4 s0, R*old adds
- *   5 R*old, s0n  6 t, (W-1)*s0n shifts  7 s1, adds  8 prod, 2*s1
+ *   1 x, ptr  2 ring (old), x32  3 d, R*old shifts, run  4 s0, R*old adds,
+ *   e  5 R*old, s0n  6 t, (W-1)*s0n shifts  7 s1, adds  8 prod, 2*s1
  *   9 slope_key  10 classify
- * endpoint: 1 x, ptr  2 ring, run  3 d_b = slope_key  4 classify (the sums
- * are still kept, in the stages that follow, as pipeline.md requires).
+ * endpoint: as far as 3 d, then 4 slope_key  5 classify (the sums are still
+ * kept, as pipeline.md requires).
  *
  * Slope bias: slope_key = slope XOR 2^31 = slope + 2^31 (mod 2^32).
- *   endpoint: slope_key = (x + 2^31) - old = d_b, one subtraction;
+ *   endpoint: slope_key = (x - old) XOR 2^31;
  *   lsq: with B = c_s0_bias = 2^(31 - k), 2^k the largest power of two
  *     dividing W - 1 (config.p4), (W - 1) * B = 2^31 (mod 2^32), so
  *     s0n = s0 + (d + B) = s0' + B carries the bias through the product

@@ -3,12 +3,14 @@
  * (pipeline.md sections 1.3, 1.5, 3; see the v1model plant_lookup.p4).
  *
  * Differences from v1model, for the stage budget: monitored_port and
- * plant_prefix are applied in parallel (stage 0) and their hits are ANDed
- * by CivicIngress; last_seq is one RegisterAction that returns the gap flag
- * and stores seq in the same access:
+ * plant_prefix are applied to every frame in parallel (stage 0; they only
+ * set flags) and CivicIngress ANDs their hits with hdr.plant.isValid();
+ * last_seq is one RegisterAction that returns the gap flag and stores seq
+ * in the same access:
  *   gap = (last_seq != seq - 1), last_seq = seq
  * which is seq != last_seq + 1 in 32-bit modular arithmetic.
- * The RegisterAction is executed by CivicIngress only for plant messages.
+ * SeqGap is applied by CivicIngress only for plant messages; it also marks
+ * the frame as one in the bridge header (egress then writes the verdict).
  */
 #ifndef _CIVIC_TNA_PLANT_LOOKUP_P4_
 #define _CIVIC_TNA_PLANT_LOOKUP_P4_

@@ -52,30 +52,32 @@ def v1model_build(tmp_path_factory):
 
 
 # ------------------------------------------------------------------ CI: the switch tests must run
-_BMV2_SKIPS: list = []
+# marker -> the tools whose presence makes a skip of such a test a failure under CI
+TOOLCHAIN = {"bmv2": ("p4c-bm2-ss", "simple_switch_grpc"), "tofino": ("bf-p4c",)}
+_CI_SKIPS: list = []
 
 
-def _ci_with_toolchain() -> bool:
-    """CI is set and p4c + BMv2 are on PATH: a skipped bmv2 test is then a failure."""
+def _ci_requires(marker: str) -> bool:
+    """CI is set and the marker's tools are on PATH: a skipped test of that kind is then a failure."""
     import os
     import shutil
-    return bool(os.environ.get("CI")) and all(shutil.which(t) for t in ("p4c-bm2-ss", "simple_switch_grpc"))
+    return bool(os.environ.get("CI")) and all(shutil.which(t) for t in TOOLCHAIN[marker])
 
 
 def pytest_runtest_logreport(report):
-    if report.skipped and "bmv2" in report.keywords:
+    if report.skipped and any(m in report.keywords and _ci_requires(m) for m in TOOLCHAIN):
         reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
-        _BMV2_SKIPS.append(f"{report.nodeid}: {reason}")
+        _CI_SKIPS.append(f"{report.nodeid}: {reason}")
 
 
 def pytest_sessionfinish(session, exitstatus):
     # CI installs the toolchain (.ci/run); a skip there means the switch was never checked
-    if _BMV2_SKIPS and _ci_with_toolchain() and session.exitstatus == 0:
+    if _CI_SKIPS and session.exitstatus == 0:
         session.exitstatus = 1
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
-    if _BMV2_SKIPS and _ci_with_toolchain():
-        terminalreporter.section("CI with the P4 toolchain: bmv2 tests must not skip", sep="!", red=True)
-        for line in _BMV2_SKIPS:
+    if _CI_SKIPS:
+        terminalreporter.section("CI with the P4 toolchain: switch tests must not skip", sep="!", red=True)
+        for line in _CI_SKIPS:
             terminalreporter.write_line(line)

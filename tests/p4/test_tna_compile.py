@@ -16,6 +16,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
+pytestmark = pytest.mark.tofino
+
 TNA_MONITORS = 2
 MAX_STAGES = 12          # Tofino 1, per pipe
 

@@ -38,7 +38,7 @@ MAX_FINDINGS = 3
 # jointly with the candidates (no datasheet spread to hold them), more findings may join, the
 # final joint refit is multi-start and every kept finding must survive its ablation
 FREE_RUN_CAL = (0.1, 5.0)
-FREE_RUN_STARTS = 4     # random starts of the joint fits on all rows, besides the warm one
+FREE_RUN_STARTS = 2     # random starts of the joint fits on all rows, besides the warm one
 MIN_ABLATION = 0.01     # a finding stays if removing it raises the held-out RMSE by 1 %
 FREE_RUN_FOLDS = 3      # blocked k-fold CV in time (two-fold without unmeasured tanks)
 

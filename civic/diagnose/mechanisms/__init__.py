@@ -4,7 +4,7 @@ from .coefficient import Coefficient, coefficient_paths
 from .dead_time import DeadTime
 from .flow_law import FlowLaw
 from .leak import Leak
-from .overflow import Overflow, Spill
+from .overflow import Overflow, Spill, Weir
 from .pump_dead_zone import PumpDeadZone
 from .pump_head import PumpHead
 from .sensor_characteristic import SensorCharacteristic
@@ -12,9 +12,9 @@ from .sensor_offset import SensorOffset
 from .sensor_saturation import SensorSaturation
 from .valve_characteristic import ValveCharacteristic
 
-CATALOGUE = (Leak, DeadTime, ValveCharacteristic, PumpHead, Overflow, Spill, SensorOffset,
+CATALOGUE = (Leak, DeadTime, ValveCharacteristic, PumpHead, Overflow, Spill, Weir, SensorOffset,
              SensorSaturation, Coefficient, FlowLaw, SensorCharacteristic, PumpDeadZone)
 
-__all__ = ["Mechanism", "CATALOGUE", "Leak", "DeadTime", "ValveCharacteristic", "PumpHead", "Overflow", "Spill",
+__all__ = ["Mechanism", "CATALOGUE", "Leak", "DeadTime", "ValveCharacteristic", "PumpHead", "Overflow", "Spill", "Weir",
            "SensorOffset", "SensorSaturation", "Coefficient", "coefficient_paths", "FlowLaw",
            "SensorCharacteristic", "PumpDeadZone"]

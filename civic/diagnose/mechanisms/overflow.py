@@ -144,3 +144,56 @@ class Spill(Overflow):
     def describe(self, p):
         return (f"{self.component} spills to {p['to']} as q = {p['c']:.4g}*(h - {p['rim_level']:.4g} dm)"
                 f"^{p['exponent']:.3g} (finite, not instantaneous)")
+
+
+class Weir(Spill):
+    """A finite spill over a crest below the datasheet rim, the crest fitted: a measured tank
+    whose level plateaus below its rim (an overflow pipe, a notch). q = c*(h - crest) to the
+    destination (an orifice link with min_level = crest, exponent 1); the datasheet rim stays
+    the wall's hard top. Two free parameters, c and the crest (below the plateau)."""
+
+    counted = True
+    hidden = ("exponent", "area")
+
+    @property
+    def n_params(self) -> int:
+        return 2
+
+    def report_parameters(self, theta=None) -> dict:
+        p = super().report_parameters(theta)
+        area = self.fixed["area"]
+        # the same law per litre: q = c_volume*(V - volume)
+        return {**p, "volume": round(p["rim_level"] * area, 6), "c_volume": round(p["c"] / area, 6)}
+
+    def edit(self, model, p):
+        name = f"spill_{self.component}"
+        while any(lk.name == name for lk in model.links):
+            name += "_"
+        model.links.append(Link(name=name, from_=self.component, to=p["to"], coeff=float(p["c"]),
+                                law="orifice", exponent=1.0, min_level=float(p["rim_level"])))
+
+    @property
+    def label(self) -> str:
+        return f"{self.name}({self.component}->{self.fixed['to']}, weir)"
+
+    def values(self, theta=None) -> dict:
+        out = Mechanism.values(self, theta)
+        out["exponent"] = 1.0
+        return out
+
+    @classmethod
+    def candidates(cls, model, loc):
+        out = []
+        measured = {model.find("sensor", s).tank for s in loc.signals_present}
+        cmax = 100.0 * max([lk.coeff for lk in model.links] + [p.gain for p in model.pumps] + [0.1])
+        for tk in model.tanks:
+            vol = loc.plateaus.get(tk.name)
+            if vol is None or tk.name not in measured or not vol < tk.rim_volume() - 0.02 * max(vol, 1e-9):
+                continue
+            top = vol / tk.area
+            for d in lower_tanks(model) + [OUTSIDE]:
+                if d != tk.name:
+                    out.append(cls(tk.name, {"c": 0.01 * cmax, "rim_level": 0.97 * top},
+                                   {"c": (1e-4 * cmax, cmax), "rim_level": (0.85 * top, top)},
+                                   {"to": d, "area": tk.area}))
+        return out

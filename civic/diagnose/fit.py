@@ -40,6 +40,7 @@ MAX_FINDINGS = 3
 FREE_RUN_CAL = (0.1, 5.0)
 FREE_RUN_STARTS = 2     # random starts of the joint fits on all rows, besides the warm one
 MIN_ABLATION = 0.01     # a finding stays if removing it raises the held-out RMSE by 1 %
+CV_BUDGET = 15          # evaluations per parameter of a warm per-fold refit
 FREE_RUN_FOLDS = 3      # blocked k-fold CV in time (two-fold without unmeasured tanks)
 
 
@@ -175,12 +176,13 @@ class Problem:
         return R / self.sigma
 
     def fit(self, mechs: list[Mechanism], rows=None, start_cal=None, start_x0=None,
-            starts: list | None = None, jitter: int = 0) -> FitResult:
+            starts: list | None = None, jitter: int = 0, budget: int = 40) -> FitResult:
         """Fit calibration + the free parameters of `mechs` (+ unmeasured initial volumes) on `rows`.
 
         `starts`: extra starting values of the last mechanism's parameters; `jitter`: that many
         extra starts drawn at random (calibration factors x/÷ 1.5, mechanism parameters and
-        initial volumes anywhere in the middle of their bounds), seeded: multi-start."""
+        initial volumes anywhere in the middle of their bounds), seeded: multi-start. `budget`:
+        evaluations per parameter (and start)."""
         rows = self.engine.train if rows is None else rows
         # calibration factors of coefficients a Coefficient candidate owns are not free
         owned = {m.fixed.get("path") for m in mechs if m.name == "coefficient"}
@@ -241,7 +243,7 @@ class Problem:
             xs = np.clip(xs, lo + 1e-9 * span, hi - 1e-9 * span)
             try:
                 sol = least_squares(fun, xs, bounds=(lo, hi), x_scale=span, diff_step=1e-4,
-                                    max_nfev=40 * (len(xs) + 1), xtol=self.xtol, ftol=self.xtol)
+                                    max_nfev=budget * (len(xs) + 1), xtol=self.xtol, ftol=self.xtol)
             except (ValueError, FloatingPointError):
                 continue
             if best is None or sol.cost < best.cost:
@@ -281,11 +283,12 @@ class Problem:
         return [(block != b) | init for b in range(k - 1, -1, -1)]
 
     def evaluate(self, mechs: list[Mechanism], start_cal=None, start_x0=None, starts=None,
-                 jitter: int = 0) -> FitResult:
+                 jitter: int = 0, budget: int = 40) -> FitResult:
         """Fit on each fold's training rows; held-out SSE/BIC over all folds' held-out rows."""
         first, held = None, []
         for mask in self.folds():
-            res = self.fit(mechs, rows=mask, start_cal=start_cal, start_x0=start_x0, starts=starts, jitter=jitter)
+            res = self.fit(mechs, rows=mask, start_cal=start_cal, start_x0=start_x0, starts=starts, jitter=jitter,
+                           budget=budget)
             R = self.residuals(res.model, res.x0_extra)
             held.append(R[~mask])
             if first is None:
@@ -491,7 +494,8 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
     full = min(fits, key=lambda r: r.train_sse)
     # physically negligible in the joint fit: not a finding, and no use refitting it per fold
     mechs = [m for m in full.mechanisms if not m.negligible(m.values(), prob.model)]
-    start = dict(start_cal=full.cal, start_x0=full.x0_extra)
+    # per-fold refits start at the joint optimum: a short budget suffices
+    start = dict(start_cal=full.cal, start_x0=full.x0_extra, budget=CV_BUDGET)
     current = prob.evaluate(mechs, **start)
     first_pass = True
     while mechs:

@@ -459,7 +459,7 @@ def _general(candidates: list[Mechanism]) -> list[Mechanism]:
     a recompile per value) stay out of the joint fit."""
     best: dict = {}
     for c in candidates:
-        if c.name == "dead_time":
+        if c.name in ("dead_time", "leak"):
             continue
         key = (c.name, c.component)
         if key not in best or len(c.params) > len(best[key].params):

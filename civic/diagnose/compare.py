@@ -39,6 +39,10 @@ INVENTORY = "inventory"   # equation-error column: measured sum of the volumes v
 # how far a real fill may sit from the datasheet's total water, as a fraction of it: the
 # inventory column's sigma (recorded plants sum to within 0.25 % of their 40 L)
 INVENTORY_SPREAD = 0.005
+# the inventory cannot tell an offset on a sensor whose level drives no flow (the reservoir's
+# L4) from a fill this far off the stated total: flagged, and such an offset a finding,
+# only beyond INVENTORY_BAND x its sigma (fills within 0.25 % leave a 0.1 L median)
+INVENTORY_BAND = 1.25
 
 
 def holdout_mask(n: int, blocks: int = N_BLOCKS) -> np.ndarray:

@@ -356,21 +356,48 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         diag.verdict = "no significant mismatch: the calibrated nominal model explains the recording"
         diag.model_improved = _refit_all(prob, [], base).model
         return diag
-    current = base
-    chosen: list[Mechanism] = []
     candidates = []
     for fam in CATALOGUE:
         if free and fam is Coefficient:
             continue     # the joint refit moves every coefficient already
         candidates.extend(fam.candidates(model, loc))
-    total = len(candidates)
-    if progress:
-        progress(0, total, "candidates")
-    planned = total
-    done = 0
     if free:
         chosen, current = _backward(prob, diag, candidates, base, progress)
-    for round_ in range(0 if free else MAX_FINDINGS):
+    else:
+        chosen, current = _forward(prob, diag, candidates, base, progress)
+    if progress:
+        progress(1, 1, "done")
+    diag.final = current
+    diag.mismatch = bool(chosen) or bool(loc.flagged)
+    if not diag.mismatch:
+        # only suspect bursts, and nothing in the catalogue explains them on held-out data
+        diag.verdict = "no significant mismatch: the calibrated nominal model explains the recording"
+        diag.model_improved = _refit_all(prob, [], base).model
+    elif chosen:
+        final_all = _refit_all(prob, chosen, current, jitter=FREE_RUN_STARTS if free else 0)
+        diag.model_improved = final_all.model
+        diag.final_all = final_all
+        if free:
+            diag.integrator = check_integrator(diag.model_improved, prob, final_all)
+        diag.verdict = f"{len(chosen)} finding(s) significant on held-out data"
+    else:
+        diag.model_improved = _refit_all(prob, [], base).model
+        diag.verdict = ("mismatch, but no mechanism of the catalogue explains it significantly "
+                        "on held-out data")
+    return diag
+
+
+def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: FitResult, progress=None):
+    """Forward selection on held-out data (up to MAX_FINDINGS): each round the candidate with
+    the lowest held-out BIC joins if `significant`; later rounds only try what helped on its
+    own in the first."""
+    model = prob.model
+    current, chosen = base, []
+    planned = len(candidates)
+    if progress:
+        progress(0, planned, "candidates")
+    done = 0
+    for round_ in range(MAX_FINDINGS):
         results = []
         for cand in candidates:
             if any(type(c) is type(cand) and c.component == cand.component for c in chosen):
@@ -410,26 +437,7 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         candidates = [c for c in candidates if not (type(c) is type(cand) and c.component == cand.component)
                       and c.label in helped]
         planned += len(candidates)
-    if progress:
-        progress(1, 1, "done")
-    diag.final = current
-    diag.mismatch = bool(chosen) or bool(loc.flagged)
-    if not diag.mismatch:
-        # only suspect bursts, and nothing in the catalogue explains them on held-out data
-        diag.verdict = "no significant mismatch: the calibrated nominal model explains the recording"
-        diag.model_improved = _refit_all(prob, [], base).model
-    elif chosen:
-        final_all = _refit_all(prob, chosen, current, jitter=FREE_RUN_STARTS if free else 0)
-        diag.model_improved = final_all.model
-        diag.final_all = final_all
-        if free:
-            diag.integrator = check_integrator(diag.model_improved, prob, final_all)
-        diag.verdict = f"{len(chosen)} finding(s) significant on held-out data"
-    else:
-        diag.model_improved = _refit_all(prob, [], base).model
-        diag.verdict = ("mismatch, but no mechanism of the catalogue explains it significantly "
-                        "on held-out data")
-    return diag
+    return chosen, current
 
 
 def _starts(cand: Mechanism) -> list:

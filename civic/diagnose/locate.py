@@ -23,7 +23,7 @@ from scipy.ndimage import binary_closing, uniform_filter1d
 from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording
 
-from .compare import INVENTORY
+from .compare import INVENTORY, INVENTORY_BAND
 from .mechanisms.base import tanks_touching
 
 BLOCK = 6          # rows averaged per block in the lack-of-fit statistic
@@ -301,7 +301,7 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
             # one number repeated, not independent rows: flagged when the measured total sits
             # outside the fill's spread (its sigma), whatever the number of windows
             j = cols.index(c)
-            if abs(median_nonzero(R[:, j])) > sigma[j]:
+            if abs(median_nonzero(R[:, j])) > INVENTORY_BAND * sigma[j]:
                 loc.flagged.append(c)
         elif s["ratio"] > bar or abs(s["z"]) > FLAG_Z:
             loc.flagged.append(c)

@@ -1,7 +1,14 @@
 """Sensor offset: y = gain*quantity + offset with an offset the datasheet does not have."""
 from __future__ import annotations
 
+from ..compare import INVENTORY_BAND, INVENTORY_SPREAD
 from .base import Mechanism, sensors_of, tanks_touching
+
+
+def drives_no_flow(model, tank: str) -> bool:
+    """No link leaves the tank and none exchanges both ways with it (a reservoir): its
+    level changes no flow, only the inventory sees an offset on its sensor."""
+    return not any(lk.from_ == tank or (lk.law == "bidirectional" and lk.to == tank) for lk in model.links)
 
 
 class SensorOffset(Mechanism):
@@ -32,6 +39,12 @@ class SensorOffset(Mechanism):
 
     def negligible(self, p, model):
         s = model.find("sensor", self.component)
+        if model.total_volume is not None and drives_no_flow(model, s.tank):
+            # seen through the inventory alone: within the fill's band it is the fill's error
+            band = INVENTORY_BAND * INVENTORY_SPREAD * model.total_volume
+            litres = abs(p["offset"]) / (s.gain or 1.0) * (model.tank(s.tank).area if s.quantity == "level" else 1.0)
+            if litres <= band:
+                return True
         return abs(p["offset"]) < max(2.0 * s.noise_sigma, 2.0 * s.resolution, 1e-3 * self.fixed.get("span", 1.0))
 
     def describe(self, p):

@@ -32,6 +32,12 @@ def make_fault(nominal, name):
         m.links.append(Link("leak", from_="T1", to="T4", coeff=0.012, law="orifice"))
     elif name == "leak_T2":
         m.links.append(Link("leak", from_="T2", to="T4", coeff=0.010, law="orifice"))
+    elif name == "leak_T1_small_out":
+        m.links.append(Link("leak", from_="T1", to="outside", coeff=0.002, law="orifice"))
+    elif name == "spill_T2":
+        # a small finite spill into the reservoir: 0.07 L/s per L above an 8.5 L rim
+        m.links.append(Link("spill", from_="T2", to="T4", coeff=0.07 * 2.0, law="orifice", exponent=1.0,
+                            min_level=8.5 / 2.0))
     elif name == "leak_T3_out":
         m.links.append(Link("leak", from_="T3", to="outside", coeff=0.010, law="orifice"))
     elif name == "offset_L2":
@@ -70,12 +76,28 @@ def closed_loop_case(nominal):
 
     cache = {}
 
-    def get(name, seed=11):
-        key = (name, seed)
+    def get(name, seed=11, extra_water=0.0):
+        """extra_water: the circuit holds this much more than the model's stated 40 L."""
+        key = (name, seed, extra_water)
         if key not in cache:
+            import json
+
+            import numpy as np
+
+            from civic.plant.control import make_schedule, schedule_from_operation
+
             plant = make_fault(nominal, name)
+            if name.startswith("spill"):    # the bundled case's setpoints: T2 passes 8.5 L
+                truth = json.loads((ROOT / "traces" / "diagnose" / "example_leak_t3" / "truth.json").read_text())
+                schedule = schedule_from_operation(truth["operation"])
+            else:
+                schedule = make_schedule(DURATION, np.random.default_rng(seed + 100)) if extra_water else None
+            x0 = None
+            if extra_water:
+                sp = schedule[0][2]
+                x0 = {"T1": sp[0], "T2": sp[1], "T3": sp[2], "T4": 40.0 + extra_water - sum(sp)}
             res = run_closed_loop(plant, DURATION, controller="mpc", seed=seed, noise=True,
-                                  controller_model=nominal)
+                                  controller_model=nominal, schedule=schedule, x0=x0)
             cache[key] = Recording(res.t, res.signals, res.fields, f"closed-loop {name}")
         return cache[key]
 

@@ -15,6 +15,10 @@ CASES = [
     ("leak_T1", "leak", "T1", "c", 0.012, 0.3),
     ("leak_T2", "leak", "T2", "c", 0.010, 0.3),
     ("leak_T3_out", "leak", "T3", "c", 0.010, 0.3),
+    # small: drains ~2 L in 10 min; a 1 % negligibility bar once gave its water to L4 or T4
+    ("leak_T1_small_out", "leak", "T1", "c", 0.002, 0.3),
+    # a finite spill over a crest below the rim: a weir, not an instant overflow plus a leak
+    ("spill_T2", "overflow", "T2", "rim_level", 4.25, 0.03),
     ("offset_L2", "sensor_offset", "L2", "offset", 0.4, 0.3),
     # the reservoir's level drives no flow: only the sum against the stated 40 L shows it
     ("offset_L4", "sensor_offset", "L4", "offset", 0.5, 0.1),
@@ -40,6 +44,8 @@ def test_concealed_fault_found(closed_loop_case, nominal, name, mech, comp, par,
     assert abs(fitted[par] - value) <= tol * abs(value), fitted
     if mech == "leak":       # where the water goes: the measured total tells T4 from outside
         assert fitted["to"] == ("outside" if name.endswith("_out") else "T4"), fitted
+    if name in ("leak_T1_small_out", "spill_T2"):
+        assert len(d.findings) == 1, [f["mechanism"].label for f in d.findings]
     # significant on held-out data, and the held-out error really falls
     assert top["dbic"] < -10 and top["gain"] > 0.3
     assert d.final.val_sse < 0.7 * d.base.val_sse
@@ -50,6 +56,15 @@ def test_clean_plant_no_alarm(closed_loop_case, nominal):
         d = diagnose(nominal, closed_loop_case("clean", seed))
         assert not d.mismatch, (seed, d.loc.scores)
         assert d.findings == []
+
+
+def test_fill_off_the_stated_total_adds_no_reservoir_offset(closed_loop_case, nominal):
+    """The circuit holds 0.15 L (0.4 %) more than the model's 40 L: a correct leak finding
+    gets no 'sensor_offset L4' appended (it did: the inventory alone cannot tell a reservoir
+    offset from a fill that far off), and a clean plant 0.2 L off raises no alarm."""
+    d = diagnose(nominal, closed_loop_case("leak_T1", seed=2, extra_water=0.15))
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("leak", "T1")]
+    assert not diagnose(nominal, closed_loop_case("clean", seed=2, extra_water=0.2)).mismatch
 
 
 def test_briefly_stuck_sensor_is_flagged(closed_loop_case, nominal):

@@ -448,7 +448,7 @@ def _starts(cand: Mechanism) -> list:
         return [[lo + f * (hi - lo)] + rest for f in (0.1, 0.3, 0.55)]
     if "rim_level" in cand.params:       # a weir: c spans decades
         lo, hi = cand.bounds["c"]
-        return [[lo * f, cand.params["rim_level"]] for f in (30.0, 300.0)]
+        return [[lo * 100.0, cand.params["rim_level"]]]
     if cand.name == "dead_time":
         lo, hi = cand.bounds["dead_time"]
         return [[lo + f * (hi - lo)] for f in (0.25, 0.6)]

@@ -191,7 +191,9 @@ class Weir(Spill):
             if vol is None or tk.name not in measured or not vol < tk.rim_volume() - 0.02 * max(vol, 1e-9):
                 continue
             top = vol / tk.area
-            for d in lower_tanks(model) + [OUTSIDE]:
+            # over the wall the spill goes where the datasheet overflow goes (if it has one)
+            dests = [tk.overflow.to] if tk.overflow is not None else lower_tanks(model) + [OUTSIDE]
+            for d in dests:
                 if d != tk.name:
                     out.append(cls(tk.name, {"c": 0.01 * cmax, "rim_level": 0.97 * top},
                                    {"c": (1e-4 * cmax, cmax), "rim_level": (0.85 * top, top)},

@@ -5,15 +5,17 @@
    `scipy.optimize.least_squares` on the training rows.
 2. **Localisation** of what the calibrated nominal model still misses
    (`civic.diagnose.locate`). No flagged component: no significant mismatch.
-3. **Candidates** of every catalogue family where the localisation points,
-   each fitted jointly with the calibration on the training rows.
-4. **Selection** on the held-out rows (interleaved blocks for the equation
-   error, the last 35 % for a free-run simulation): BIC of the held-out
-   residuals, `N log(SSE/N) + k log N`. A candidate becomes a finding only if
-   it lowers the held-out BIC by `MIN_DBIC` and the held-out SSE by
-   `MIN_GAIN`. Forward selection: the finding joins the model and the other
-   candidates are tried again (up to `MAX_FINDINGS`).
-5. The selected model is refitted on all rows: the improved model.
+3. **Candidates** of every catalogue family where the localisation points.
+4. **Selection** on held-out rows. Equation error (every tank measured): forward
+   selection (`_forward`), each candidate fitted jointly with the calibration; it joins
+   if it lowers the held-out BIC (`N log(SSE/N) + k log N`) by `MIN_DBIC` and the
+   held-out SSE by `MIN_GAIN` (up to `MAX_FINDINGS`). Free run (a rig with unmeasured
+   tanks): the coefficients are refitted jointly (factors `FREE_RUN_CAL`), every family's
+   most general candidate is fitted together (multi-start), then backward elimination
+   on blocked k-fold cross-validation in time (`_backward`), whose last pass is the
+   ablation table.
+5. The selected model is refitted on all rows: the improved model (free run: multi-start,
+   integrator checked).
 """
 from __future__ import annotations
 

@@ -40,7 +40,6 @@ MAX_FINDINGS = 3
 # jointly with the candidates (no datasheet spread to hold them), more findings may join, the
 # final joint refit is multi-start and every kept finding must survive its ablation
 FREE_RUN_CAL = (0.1, 5.0)
-FREE_RUN_STARTS = 2     # random starts of the joint fits on all rows, besides the warm one
 MIN_ABLATION = 0.01     # a finding stays if removing it raises the held-out RMSE by 1 %
 CV_BUDGET = 15          # evaluations per parameter of a warm per-fold refit
 FREE_RUN_FOLDS = 3      # blocked k-fold CV in time (two-fold without unmeasured tanks)
@@ -178,13 +177,11 @@ class Problem:
         return R / self.sigma
 
     def fit(self, mechs: list[Mechanism], rows=None, start_cal=None, start_x0=None,
-            starts: list | None = None, jitter: int = 0, budget: int = 40) -> FitResult:
+            starts: list | None = None, budget: int = 40) -> FitResult:
         """Fit calibration + the free parameters of `mechs` (+ unmeasured initial volumes) on `rows`.
 
-        `starts`: extra starting values of the last mechanism's parameters; `jitter`: that many
-        extra starts drawn at random (calibration factors x/÷ 1.5, mechanism parameters and
-        initial volumes anywhere in the middle of their bounds), seeded: multi-start. `budget`:
-        evaluations per parameter (and start)."""
+        `starts`: extra starting values of the last mechanism's parameters (multi-start);
+        `budget`: evaluations per parameter (and start)."""
         rows = self.engine.train if rows is None else rows
         # calibration factors of coefficients a Coefficient candidate owns are not free
         owned = {m.fixed.get("path") for m in mechs if m.name == "coefficient"}
@@ -234,11 +231,6 @@ class Problem:
                 xs = x0.copy()
                 xs[last:last + len(s)] = s
                 starts_x.append(np.clip(xs, lo, hi))
-        rng = np.random.default_rng(len(x0))
-        for _ in range(jitter):
-            xs = lo + rng.uniform(0.15, 0.85, len(x0)) * span
-            xs[:nc] = x0[:nc] * np.exp(rng.uniform(-0.4, 0.4, nc))
-            starts_x.append(np.clip(xs, lo, hi))
         best = None
         for xs in starts_x:
             # keep the start strictly inside the bounds (least_squares requirement)
@@ -285,12 +277,11 @@ class Problem:
         return [(block != b) | init for b in range(k - 1, -1, -1)]
 
     def evaluate(self, mechs: list[Mechanism], start_cal=None, start_x0=None, starts=None,
-                 jitter: int = 0, budget: int = 40) -> FitResult:
+                 budget: int = 40) -> FitResult:
         """Fit on each fold's training rows; held-out SSE/BIC over all folds' held-out rows."""
         first, held = None, []
         for mask in self.folds():
-            res = self.fit(mechs, rows=mask, start_cal=start_cal, start_x0=start_x0, starts=starts, jitter=jitter,
-                           budget=budget)
+            res = self.fit(mechs, rows=mask, start_cal=start_cal, start_x0=start_x0, starts=starts, budget=budget)
             R = self.residuals(res.model, res.x0_extra)
             held.append(R[~mask])
             if first is None:
@@ -376,7 +367,7 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         diag.verdict = "no significant mismatch: the calibrated nominal model explains the recording"
         diag.model_improved = _refit_all(prob, [], base).model
     elif chosen:
-        final_all = _refit_all(prob, chosen, current, jitter=FREE_RUN_STARTS if free else 0)
+        final_all = _refit_all(prob, chosen, current)
         diag.model_improved = final_all.model
         diag.final_all = final_all
         if free:
@@ -457,10 +448,10 @@ def _starts(cand: Mechanism) -> list:
     return []
 
 
-def _refit_all(prob: Problem, mechs: list[Mechanism], start: FitResult, jitter: int = 0) -> FitResult:
+def _refit_all(prob: Problem, mechs: list[Mechanism], start: FitResult) -> FitResult:
     """Final parameters from all rows (training and held out)."""
     rows = np.ones_like(prob.engine.train)
-    return prob.fit(mechs, rows=rows, start_cal=start.cal, start_x0=start.x0_extra, jitter=jitter)
+    return prob.fit(mechs, rows=rows, start_cal=start.cal, start_x0=start.x0_extra)
 
 
 def _general(candidates: list[Mechanism]) -> list[Mechanism]:
@@ -496,7 +487,7 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
     if progress:
         progress(len(mechs), len(mechs) + 1, f"joint fit of {len(mechs)} candidates (multi-start)")
     fits = [prob.fit(mechs, rows=every, start_cal=base.cal, start_x0=base.x0_extra,
-                     starts=_starts(mechs[-1]) if mechs else None, jitter=FREE_RUN_STARTS)]
+                     starts=_starts(mechs[-1]) if mechs else None)]
     if singles:
         k = int(np.argmin([r.train_sse for r in singles]))
         warm = [singles[k].mechanisms[0] if j == k else m for j, m in enumerate(mechs)]

@@ -120,11 +120,10 @@ def run(args) -> int:
 # ---------------------------------------------------------------------------------------
 def _fleet(args, model) -> int:
     """N plants of one scenario in one pcap, one gateway address each, messages interleaved in time."""
-    from civic.report import progress_bar
-
     from civic.plant.procedures import (FAULT_CLASSES, append_label, apply_faults, label_row, make_procedure,
                                         parse_fault, run_procedure)
     from civic.plant.simulate import WIRE_COLUMNS, to_wire
+    from civic.report import progress_bar
     from civic.wire import build_frames, int_to_ip, ip_to_int, write_pcap
 
     n = args.plants
@@ -134,6 +133,8 @@ def _fleet(args, model) -> int:
                          f"{256 - (first & 0xFF)} plants)")
     if not args.output.endswith(".pcap"):
         raise CivicError("--plants writes one capture: the output must end in .pcap")
+    if args.plot:
+        raise CivicError("--plot shows one plant: leave out --plants")
     if args.duration is not None and not args.duration > 0:
         raise CivicError("--duration must be > 0")
     scenario, base_seed = args.scenario, args.seed if args.seed is not None else 0
@@ -157,7 +158,7 @@ def _fleet(args, model) -> int:
             else:
                 proc = make_procedure(model, scenario, args.v0, faults, args.duration)
                 t, signals = proc.t, run_procedure(proc, noise=not args.no_noise, seed=seed)
-                rows.append(label_row(args.output.rsplit("/", 1)[-1], proc, seed, ip))
+                rows.append(label_row(Path(args.output).name, proc, seed, ip))
             fields = to_wire(model, signals)
             seq0 = int(np.random.default_rng(seed).integers(0, 2**32))
             f = build_frames({c: fields[c] for c in WIRE_COLUMNS}, src_ip=ip, seq0=seq0)
@@ -167,8 +168,8 @@ def _fleet(args, model) -> int:
     times = np.concatenate(times)
     order = np.argsort(times, kind="stable")
     write_pcap(args.output, times[order], [frames[i] for i in order])
-    for row in rows:
-        if args.labels:
+    if args.labels:
+        for row in rows:
             append_label(args.labels, row)
     print(f"simulated {scenario} on {n} plants ({args.src_ip} .. {int_to_ip(first + n - 1)}): "
           f"{len(frames)} messages interleaved -> {args.output}")

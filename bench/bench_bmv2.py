@@ -18,13 +18,6 @@ ROOT = Path(__file__).resolve().parent.parent
 PLANTS = 64
 
 
-def compile_v1model(src: Path, out: Path) -> Path:
-    out.mkdir()
-    subprocess.run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(out / "civic.json"),
-                    "--p4runtime-files", str(out / "civic.p4info.txtpb"), str(src)], check=True)
-    return out
-
-
 def timed_send(sw, frames, window) -> tuple[float, list]:
     t0 = time.perf_counter()
     out = sw.send_frames(frames, window=window)
@@ -39,7 +32,7 @@ def main() -> None:
         return
     from rich.console import Console
 
-    from civic.bmv2 import WINDOW, BMv2Switch
+    from civic.bmv2 import WINDOW, BMv2Switch, compile_v1model
     from civic.config import load_monitors
     from civic.pipeline import SwitchModel
     from civic.train import collect_runs, read_labels, train
@@ -51,8 +44,9 @@ def main() -> None:
     entries = train(collect_runs(training, read_labels(training / "labels.csv"), config, "lsq"), config, "lsq", True)
     with tempfile.TemporaryDirectory() as tmp, console.status("BMv2 benchmark") as status:
         tmp = Path(tmp)
-        civic_build = compile_v1model(ROOT / "p4src" / "v1model" / "civic.p4", tmp / "civic")
-        fwd_build = compile_v1model(ROOT / "bench" / "p4" / "forward.p4", tmp / "forward")
+        civic_build, fwd_build = tmp / "civic", tmp / "forward"
+        compile_v1model(ROOT / "p4src" / "v1model" / "civic.p4", civic_build)
+        compile_v1model(ROOT / "bench" / "p4" / "forward.p4", fwd_build)
         path = tmp / "entries.json"
         entries.save(path)
         fleet = tmp / "fleet.pcap"

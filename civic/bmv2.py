@@ -416,6 +416,15 @@ class BMv2Switch:
 P4_SOURCE = Path(__file__).resolve().parents[1] / "p4src"
 
 
+def compile_v1model(program: str | Path, pipeline_dir: str | Path) -> str:
+    """p4c-bm2-ss: program -> pipeline_dir/civic.json + its P4Info; returns the compiler's messages."""
+    d = Path(pipeline_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    res = _run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(d / p4rt.PIPELINE_JSON),
+                "--p4runtime-files", str(d / p4rt.PIPELINE_P4INFO[0]), str(program)], "compiling the P4 program")
+    return res.stdout + res.stderr
+
+
 def build_pipeline(pipeline_dir: str | Path, source: Path = P4_SOURCE) -> bool:
     """Compile p4src/v1model/civic.p4 into pipeline_dir when it has no build or an older one.
 
@@ -430,9 +439,7 @@ def build_pipeline(pipeline_dir: str | Path, source: Path = P4_SOURCE) -> bool:
     newest = max(f.stat().st_mtime for sub in ("v1model", "shared") for f in (source / sub).rglob("*.p4"))
     if js.is_file() and (d / p4rt.PIPELINE_P4INFO[0]).is_file() and js.stat().st_mtime >= newest:
         return False
-    d.mkdir(parents=True, exist_ok=True)
-    _run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(js),
-          "--p4runtime-files", str(d / p4rt.PIPELINE_P4INFO[0]), str(main)], "compiling the P4 program")
+    compile_v1model(main, d)
     return True
 
 

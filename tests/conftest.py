@@ -37,17 +37,14 @@ def paper_entries(training_runs):
 def v1model_build(tmp_path_factory):
     """p4src/v1model/civic.p4 compiled by p4c-bm2-ss (civic.json + P4Info), once per session."""
     import shutil
-    import subprocess
 
+    from civic.bmv2 import compile_v1model
     from data import ROOT
     if shutil.which("p4c-bm2-ss") is None:
         pytest.skip("p4c-bm2-ss not on PATH (install the P4 toolchain, see p4src/README.md)")
     build = tmp_path_factory.mktemp("v1model")
-    res = subprocess.run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(build / "civic.json"),
-                          "--p4runtime-files", str(build / "civic.p4info.txtpb"),
-                          str(ROOT / "p4src" / "v1model" / "civic.p4")], capture_output=True, text=True)
-    assert res.returncode == 0, res.stderr
-    assert "warning" not in (res.stderr + res.stdout).lower(), res.stderr + res.stdout
+    messages = compile_v1model(ROOT / "p4src" / "v1model" / "civic.p4", build)
+    assert "warning" not in messages.lower(), messages
     return build
 
 

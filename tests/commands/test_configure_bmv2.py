@@ -138,12 +138,9 @@ def test_unreachable_and_foreign_pipeline_are_one_line_errors(switch, v1model_bu
                    "cannot reach switch 127.0.0.1:1")
     one_line_error(civic("configure", "--switch", switch.address, "--entries", e1), "no pipeline installed")
 
+    from civic.bmv2 import compile_v1model
     fwd = tmp_path / "fwd"
-    fwd.mkdir()
-    res = subprocess.run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(fwd / "civic.json"),
-                          "--p4runtime-files", str(fwd / "civic.p4info.txtpb"),
-                          str(ROOT / "bench" / "p4" / "forward.p4")], capture_output=True, text=True)
-    assert res.returncode == 0, res.stderr
+    compile_v1model(ROOT / "bench" / "p4" / "forward.p4", fwd)
     one_line_error(civic("configure", "--switch", switch.address, "--entries", e1, "--pipeline", fwd),
                    "P4Info has no table")
     # the switch runs another program: configure without --pipeline says it is not CIVIC's

@@ -15,12 +15,14 @@ DEFAULT_MONITORS = Path(__file__).resolve().parent.parent / "configs" / "monitor
 
 @dataclass
 class Monitor:
-    """One monitor: a level signal, a window and an instantaneous precondition."""
+    """One monitor: a level signal, a window, an instantaneous precondition and, optionally,
+    the two levels whose difference drives the tank's inflow (compensated, docs/pipeline.md 3a)."""
 
     name: str
     signal: str
     window: int
     precondition: dict[str, tuple[int, int]] = field(default_factory=dict)
+    compensate: tuple[str, str] | None = None
 
     def ranges(self) -> list[tuple[int, int]]:
         """Precondition as one inclusive range per wire field, in SIGNALS order."""
@@ -76,7 +78,14 @@ def parse_monitor(raw, what: str) -> Monitor:
         raise CivicError(f"{what}.signal: {raw['signal']!r} is not one of {', '.join(LEVEL_SIGNALS)}")
     window = check_int(raw["window"], f"{what}.window", MIN_WINDOW, MAX_WINDOW)
     pre = parse_precondition(raw.get("precondition", {}), f"{what}.precondition")
-    return Monitor(name=name, signal=raw["signal"], window=window, precondition=pre)
+    comp = raw.get("compensate")
+    if comp is not None:
+        if (not isinstance(comp, list) or len(comp) != 2 or not all(s in LEVEL_SIGNALS for s in comp)
+                or comp[0] == comp[1]):
+            raise CivicError(f"{what}.compensate: expected two different levels [plus, minus] "
+                             f"from {', '.join(LEVEL_SIGNALS)}, got {comp!r}")
+        comp = (comp[0], comp[1])
+    return Monitor(name=name, signal=raw["signal"], window=window, precondition=pre, compensate=comp)
 
 
 def check_monitor_list(monitors: list[Monitor], what: str) -> None:

@@ -16,11 +16,14 @@ from civic.errors import CivicError
 from civic.files import read_json
 from civic.wire import CLASS_CODES
 
-FORMAT = "civic-entries/1"
+FORMAT = "civic-entries/2"
+FORMATS = ("civic-entries/1", FORMAT)   # format 1: no compensation
 ESTIMATORS = ("endpoint", "lsq")
 SLOPE_MIN, SLOPE_MAX = -(2**31), 2**31 - 1
 LEVEL_MAX = 0xFFFF
 CLASS_COLUMNS = ("slope_lo", "slope_hi", "level_lo", "level_hi", "cls")
+OFFSET_COLUMNS = ("aux_lo", "aux_hi", "offset")
+OFFSET_MAX = 2**30          # |offset| bound: slope - offset never wraps (pipeline.md 3a)
 
 
 @dataclass
@@ -30,6 +33,12 @@ class MonitorEntries(Monitor):
     estimator: str = "lsq"
     default_class: int = CLASS_CODES["error"]
     classes: np.ndarray = field(default_factory=lambda: np.zeros((0, 5), dtype=np.int64))
+    offsets: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int64))
+
+    @property
+    def aux_signals(self) -> tuple[str, str]:
+        """(aux_plus, aux_minus); an uncompensated monitor uses its own signal twice (aux = 0)."""
+        return self.compensate or (self.signal, self.signal)
 
     @property
     def ring_len(self) -> int:
@@ -48,6 +57,9 @@ class MonitorEntries(Monitor):
             "name": self.name, "signal": self.signal, "window": self.window,
             "estimator": self.estimator,
             "precondition": {k: list(v) for k, v in self.precondition.items()},
+            **({"compensation": {"signal": self.compensate[0], "minus": self.compensate[1],
+                                 "offsets": [{"aux": [int(r[0]), int(r[1])], "offset": int(r[2])}
+                                             for r in self.offsets]}} if self.compensate else {}),
             "slope_scale_ml_per_s": self.slope_scale,
             "default_class": self.default_class,
             "classes": [{"slope": [int(r[0]), int(r[1])], "level": [int(r[2]), int(r[3])], "class": int(r[4])}
@@ -107,16 +119,54 @@ def parse_monitor_entries(raw, what: str) -> MonitorEntries:
         table[i, 2:4] = check_range(row.get("level", [0, LEVEL_MAX]), f"{w}.level", 0, LEVEL_MAX)
         table[i, 4] = check_int(row["class"], f"{w}.class", 1, 3)
     check_no_overlap(table, what)
+    comp, offsets = parse_compensation(raw.get("compensation"), f"{what}.compensation", est, base.window)
     return MonitorEntries(name=base.name, signal=base.signal, window=base.window,
-                          precondition=base.precondition, estimator=est,
-                          default_class=default, classes=table)
+                          precondition=base.precondition, compensate=comp, estimator=est,
+                          default_class=default, classes=table, offsets=offsets)
+
+
+def parse_compensation(raw, what: str, estimator: str, window: int):
+    """(aux_plus, aux_minus) or None, and the compensate table rows (aux_lo, aux_hi, offset)."""
+    if raw is None:
+        return None, np.zeros((0, 3), dtype=np.int64)
+    if not isinstance(raw, dict):
+        raise CivicError(f"{what}: expected an object with signal, minus, offsets")
+    for key in ("signal", "minus", "offsets"):
+        if key not in raw:
+            raise CivicError(f"{what}: missing key '{key}'")
+    levels = ("l1", "l2", "l3", "l4")
+    for key in ("signal", "minus"):
+        if raw[key] not in levels:
+            raise CivicError(f"{what}.{key}: {raw[key]!r} is not one of {', '.join(levels)}")
+    if raw["signal"] == raw["minus"]:
+        raise CivicError(f"{what}: signal and minus must differ")
+    rows = raw["offsets"]
+    if not isinstance(rows, list):
+        raise CivicError(f"{what}.offsets: expected a list")
+    table = np.zeros((len(rows), 3), dtype=np.int64)
+    step = window - 1 if estimator == "lsq" else 1
+    for i, row in enumerate(rows):
+        w = f"{what}.offsets[{i}]"
+        if not isinstance(row, dict) or "aux" not in row or "offset" not in row:
+            raise CivicError(f"{w}: expected an object with aux [lo, hi] and offset")
+        table[i, 0:2] = check_range(row["aux"], f"{w}.aux", 0, LEVEL_MAX)
+        table[i, 2] = check_int(row["offset"], f"{w}.offset", -OFFSET_MAX, OFFSET_MAX)
+        if table[i, 2] % step:
+            raise CivicError(f"{w}.offset: {table[i, 2]} is not a multiple of W - 1 = {step} (lsq)")
+    order = np.argsort(table[:, 0], kind="stable")
+    s = table[order]
+    clash = np.flatnonzero(s[1:, 0] <= s[:-1, 1])
+    if len(clash):
+        raise CivicError(f"{what}: offsets entries {order[clash[0]]} and {order[clash[0] + 1]} overlap")
+    return (raw["signal"], raw["minus"]), table
 
 
 def parse_entries(raw, what: str) -> Entries:
     if not isinstance(raw, dict):
         raise CivicError(f"{what}: expected a JSON object")
-    if raw.get("format") != FORMAT:
-        raise CivicError(f"{what}: format: expected {FORMAT!r}, got {raw.get('format')!r}")
+    if raw.get("format") not in FORMATS:
+        raise CivicError(f"{what}: format: expected one of {', '.join(map(repr, FORMATS))}, "
+                         f"got {raw.get('format')!r}")
     port, prefix = parse_common(raw, what)
     items = raw.get("monitors")
     if not isinstance(items, list):

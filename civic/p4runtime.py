@@ -183,7 +183,7 @@ class P4Schema:
     def managed_tables(self) -> list[str]:
         names = [TABLE_FORWARD, TABLE_MONITORED_PORT, TABLE_PLANT_PREFIX]
         for k in range(self.monitor_slots()):
-            names += [mon(k, "config"), mon(k, "precondition"), mon(k, "classify")]
+            names += [mon(k, "config"), mon(k, "precondition"), mon(k, "compensate"), mon(k, "classify")]
         return names
 
     def default_tables(self) -> list[str]:
@@ -229,7 +229,10 @@ class P4Schema:
         if info is None:
             return f"action 0x{a.action_id:08x}"
         pnames = {p.id: p.name for p in info.params.values()}
-        args = ", ".join(f"{pnames.get(p.param_id, p.param_id)}={decode_value(p.value)}" for p in a.params)
+        def shown(p):
+            name, v = pnames.get(p.param_id, p.param_id), decode_value(p.value)
+            return f"{name}={v - (1 << 32) if name == 'offset' and v >= 1 << 31 else v}"  # signed
+        args = ", ".join(shown(p) for p in a.params)
         return f"{info.name.split('.')[-1]}({args})"
 
 
@@ -335,10 +338,11 @@ def desired_state(entries: Entries, schema: P4Schema) -> DesiredState:
 
     stride = schema.ring_stride()
     for k in range(slots):
-        cfg, pre, cls = (schema.table(mon(k, t)) for t in ("config", "precondition", "classify"))
+        cfg, pre, comp, cls = (schema.table(mon(k, t)) for t in ("config", "precondition", "compensate", "classify"))
         if k >= len(entries.monitors):
             out.defaults.append(_entry(cfg, [], _action(schema, cfg, mon(k, "set_config"), enabled=0, signal=0,
-                                                        window=0, ring_len=0, lsq=0), default=True))
+                                                        window=0, ring_len=0, lsq=0, aux_plus=0, aux_minus=0),
+                                       default=True))
             out.defaults.append(_entry(cls, [], _action(schema, cls, mon(k, "set_class"), cls=3), default=True))
             continue
         m = entries.monitors[k]
@@ -349,10 +353,15 @@ def desired_state(entries: Entries, schema: P4Schema) -> DesiredState:
             raise CivicError(f"{what}: signal {m.signal!r} cannot be monitored (one of l1..l4)")
         out.defaults.append(_entry(cfg, [], _action(
             schema, cfg, mon(k, "set_config"), enabled=1, signal=SIGNAL_CODES[m.signal], window=m.window,
-            ring_len=m.ring_len, lsq=int(m.estimator == "lsq")), default=True))
+            ring_len=m.ring_len, lsq=int(m.estimator == "lsq"), aux_plus=SIGNAL_CODES[m.aux_signals[0]],
+            aux_minus=SIGNAL_CODES[m.aux_signals[1]]), default=True))
         ranges = dict(zip(SIGNALS, m.ranges()))
         out.entries.append(_entry(pre, [_range(pre, f, lo, hi) for f, (lo, hi) in ranges.items()],
                                   _action(schema, pre, mon(k, "qualify")), priority=PRIORITY_BASE))
+        for i, (lo, hi, off) in enumerate(m.offsets.tolist()):
+            out.entries.append(_entry(comp, [_range(comp, "aux", lo, hi)],
+                                      _action(schema, comp, mon(k, "set_offset"), offset=off & 0xFFFFFFFF),
+                                      priority=PRIORITY_BASE - i))
         if len(m.classes) >= PRIORITY_BASE:
             raise CivicError(f"{what}: {len(m.classes)} class entries, at most {PRIORITY_BASE - 1}")
         for i, (lo, hi, llo, lhi, c) in enumerate(m.classes.tolist()):

@@ -416,11 +416,48 @@ def test_entries_to_protos_encoding():
     defaults = {sch.table_by_id[te.table_id].name: te for te in want.defaults}
     assert all(te.is_default_action and not te.match for te in defaults.values())
     cfg = lambda k: [int.from_bytes(v, "big") for _, v in params(defaults[f"CivicIngress.mon{k}.config"])]
-    assert cfg(0) == [1, 2, 20, 20, 1]      # enabled, signal l3, window, ring_len = W (lsq), lsq
-    assert cfg(1) == [1, 0, 9, 8, 0]        # endpoint: ring_len = W - 1
-    assert cfg(2) == cfg(3) == [0, 0, 0, 0, 0]
+    # enabled, signal l3, window, ring_len = W (lsq), lsq, aux_plus = aux_minus (uncompensated: aux = 0)
+    assert cfg(0) == [1, 2, 20, 20, 1, 2, 2]
+    assert cfg(1) == [1, 0, 9, 8, 0, 0, 0]        # endpoint: ring_len = W - 1
+    assert cfg(2) == cfg(3) == [0] * 7
     assert params(defaults["CivicIngress.mon0.classify"]) == [(1, b"\x03")]
     assert params(defaults["CivicIngress.mon1.classify"]) == [(1, b"\x02")]
+
+
+def test_compensation_entries_and_config():
+    raw = copy.deepcopy(ENTRIES)
+    raw["format"] = "civic-entries/2"
+    raw["monitors"][0]["compensation"] = {"signal": "l2", "minus": "l3", "offsets": [
+        {"aux": [0, 99], "offset": 0}, {"aux": [100, 999], "offset": 19 * 100},
+        {"aux": [1000, 65535], "offset": -19 * 3}]}
+    sch = schema()
+    want = p4rt.desired_state(parse_entries(raw, "t"), sch)
+    comp = [te for te in want.entries if sch.table_by_id[te.table_id].name == "CivicIngress.mon0.compensate"]
+    assert [te.priority for te in comp] == [p4rt.PRIORITY_BASE - i for i in range(3)]
+    aux = [(field(te, sch, "aux").range.low, field(te, sch, "aux").range.high) for te in comp]
+    assert aux == [(b"\x00", b"\x63"), (b"\x64", b"\x03\xe7"), (b"\x03\xe8", b"\xff\xff")]  # canonical
+    assert [int.from_bytes(params(te)[0][1], "big") for te in comp] == [0, 1900, (-57) & 0xFFFFFFFF]
+    assert "offset=-57" in sch.describe(comp[2])
+    defaults = {sch.table_by_id[te.table_id].name: te for te in want.defaults}
+    cfg = [int.from_bytes(v, "big") for _, v in params(defaults["CivicIngress.mon0.config"])]
+    assert cfg[-2:] == [1, 2]                      # aux = l2 - l3
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda c: c.update(signal="l3"), "signal and minus must differ"),
+    (lambda c: c.update(minus="p1"), "minus: 'p1' is not one of"),
+    (lambda c: c["offsets"].append({"aux": [50, 60], "offset": 19}), "overlap"),
+    (lambda c: c["offsets"].__setitem__(0, {"aux": [0, 99], "offset": 20}), "not a multiple of W - 1 = 19"),
+    (lambda c: c.pop("offsets"), "missing key 'offsets'"),
+])
+def test_bad_compensation_is_one_clear_error(change, message):
+    raw = copy.deepcopy(ENTRIES)
+    raw["format"] = "civic-entries/2"
+    comp = {"signal": "l2", "minus": "l3", "offsets": [{"aux": [0, 99], "offset": 0}]}
+    change(comp)
+    raw["monitors"][0]["compensation"] = comp
+    with pytest.raises(CivicError, match=message.replace("(", r"\(")):
+        parse_entries(raw, "t")
 
 
 def test_precondition_ranges_and_forwarding_override():

@@ -1,4 +1,5 @@
-"""Twin of the precondition and classify range tables in control/monitor.p4."""
+"""Twin of the precondition, compensate and classify tables in control/monitor.p4
+(and of the aux difference in control/signal_select.p4)."""
 from __future__ import annotations
 
 import numpy as np
@@ -15,6 +16,20 @@ def qualified(fields: dict, ranges: list[tuple[int, int]]) -> np.ndarray:
         v = fields[name]
         ok &= (v >= lo) & (v <= hi)
     return ok
+
+
+def aux(fields: dict, plus: str, minus: str) -> np.ndarray:
+    """max(x[plus] - x[minus], 0): the level difference that drives the inflow (16 bit)."""
+    return np.maximum(np.asarray(fields[plus], np.int64) - np.asarray(fields[minus], np.int64), 0)
+
+
+def compensate(aux_value, offsets: np.ndarray) -> np.ndarray:
+    """Compensate table lookup on aux: the offset of the entry whose range holds it, 0 on a miss."""
+    a = np.asarray(aux_value, dtype=np.int64)
+    out = np.zeros(a.shape, dtype=np.int64)
+    for lo, hi, off in offsets:
+        out[(a >= lo) & (a <= hi)] = off
+    return out
 
 
 def slope_key(slope):

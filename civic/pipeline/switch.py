@@ -24,11 +24,18 @@ class MonitorTrace:
     run: np.ndarray       # qualifying-run counter after the message
     slope: np.ndarray     # raw estimator value (signed)
     level: np.ndarray     # the monitored signal's current value
+    aux: np.ndarray       # compensate table key
+    offset: np.ndarray    # compensate table result (the expected inflow, raw units)
     code: np.ndarray      # 0 not evaluated, 1..3 class
 
     @property
     def evaluated(self) -> np.ndarray:
         return self.run >= self.monitor.window
+
+    @property
+    def resid(self) -> np.ndarray:
+        """What the class table sees: the slope minus the expected inflow."""
+        return slope.to_int32(self.slope - self.offset)
 
 
 class SwitchModel:
@@ -59,9 +66,12 @@ class SwitchModel:
                 s = int(slope.lsq(ring.s0[slot], ring.s1[slot], mon.window))
             else:
                 s = int(slope.endpoint(x, old))
+            a = classification.aux(fields, *mon.aux_signals)
+            resid = int(slope.to_int32(s - int(classification.compensate(a, mon.offsets))))
             code = 0
             if ring.run[slot] >= mon.window:
-                code = int(classification.classify(np.array([s]), np.array([x]), mon.classes, mon.default_class)[0])
+                code = int(classification.classify(np.array([resid]), np.array([x]), mon.classes,
+                                                   mon.default_class)[0])
             verdict |= code << (2 * m)
         return verdict
 
@@ -100,11 +110,14 @@ class SwitchModel:
                 run[sp] = data_collection.runs(q[sp], gap[sp])
                 old, s0, s1 = data_collection.window_sums(x[sp], mon.ring_len)
                 s[sp] = slope.lsq(s0, s1, mon.window) if mon.estimator == "lsq" else slope.endpoint(x[sp], old)
+            a = classification.aux(fields, *mon.aux_signals)
+            off = classification.compensate(a, mon.offsets)
             code = np.zeros(len(order), dtype=np.int64)
             ev = run >= mon.window
-            code[ev] = classification.classify(s[ev], x[ev], mon.classes, mon.default_class)
+            code[ev] = classification.classify(slope.to_int32(s[ev] - off[ev]), x[ev], mon.classes,
+                                               mon.default_class)
             traces.append(MonitorTrace(monitor=mon, run=run[unsort], slope=s[unsort], level=x[unsort],
-                                       code=code[unsort]))
+                                       aux=a[unsort], offset=off[unsort], code=code[unsort]))
         return idx, traces
 
     def run(self, messages: np.ndarray) -> np.ndarray:

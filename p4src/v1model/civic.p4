@@ -25,7 +25,8 @@
  *   CivicIngress.plant_prefix, .set_plant
  *   CivicIngress.last_seq
  *   CivicIngress.monK.{config, set_config, precondition, qualify,
- *                      disqualify, classify, set_class,
+ *                      disqualify, compensate, set_offset, classify,
+ *                      set_class,
  *                      ring, ptr, run, s0, s1}            K = 0..3
  */
 #include <core.p4>

@@ -176,9 +176,9 @@ def test_v1model_control_plane_names():
             p4runtime.ACTION_SET_MONITORED: "action", p4runtime.ACTION_SET_PLANT: "action",
             p4runtime.REGISTER_LAST_SEQ: "register", "CivicIngress.drop": "action"}
     for k in range(MONITOR_SLOTS_V1):
-        for t in ("config", "precondition", "classify"):
+        for t in ("config", "precondition", "compensate", "classify"):
             want[p4runtime.mon(k, t)] = "table"
-        for a in ("set_config", "qualify", "disqualify", "set_class"):
+        for a in ("set_config", "qualify", "disqualify", "set_offset", "set_class"):
             want[p4runtime.mon(k, a)] = "action"
         for r in p4runtime.MONITOR_REGISTERS:
             want[p4runtime.mon(k, r)] = "register"
@@ -213,10 +213,12 @@ def test_tna_derived_names():
 def test_v1model_key_and_parameter_names():
     src = source(V1 / "civic.p4")
     for key, kind in [("ingress_port", "exact"), ("dst_port", "exact"), ("src_addr", "lpm"),
-                      ("slope_key", "range"), ("level", "range")] + [(s, "range") for s in wire.SIGNALS]:
+                      ("slope_key", "range"), ("level", "range"), ("aux", "range")] + [(s, "range") for s in wire.SIGNALS]:
         assert re.search(rf':\s*{kind}\s+@name\("{key}"\)', src), key
     assert re.search(r"action\s+set_config\s*\(\s*bit<1>\s+enabled\s*,\s*bit<2>\s+signal\s*,\s*bit<8>\s+window\s*,"
-                     r"\s*bit<8>\s+ring_len\s*,\s*bit<1>\s+lsq\s*\)", src)
+                     r"\s*bit<8>\s+ring_len\s*,\s*bit<1>\s+lsq\s*,\s*bit<2>\s+aux_plus\s*,"
+                     r"\s*bit<2>\s+aux_minus\s*\)", src)
+    assert re.search(r"action\s+set_offset\s*\(\s*bit<32>\s+offset\s*\)", src)
     assert re.search(r"action\s+set_class\s*\(\s*bit<2>\s+cls\s*\)", src)
     assert re.search(r"action\s+set_egress\s*\(\s*bit<9>\s+port\s*\)", src)
     assert "mark_to_drop(standard_metadata)" in src

@@ -23,8 +23,14 @@ struct monitor_md_t {
     bit<8>  window;         // W
     bit<8>  ring_len;       // R = W (lsq) or W - 1 (endpoint)
     bit<1>  lsq;            // 1: lsq estimator, 0: endpoint estimator
+    bit<2>  aux_plus;       // SIGNAL_L1..L4: aux = max(x[aux_plus] - x[aux_minus], 0)
+    bit<2>  aux_minus;
     // per message
     bit<16> x;              // the monitored signal
+    bit<16> aux_a;          // x[aux_plus], x[aux_minus]
+    bit<16> aux_b;
+    bit<16> aux;            // compensate table key
+    bit<32> offset;         // compensate table result (signed), 0 on a miss
     bit<1>  q;              // precondition holds
     bit<8>  run;            // run counter after this message
     bit<8>  ptr;            // ring pointer before this message
@@ -33,7 +39,7 @@ struct monitor_md_t {
     bit<32> s0;             // running sums after this message
     bit<32> s1;
     bit<32> slope;          // signed 32-bit estimator value
-    bit<32> slope_key;      // slope XOR SLOPE_BIAS (class table key)
+    bit<32> slope_key;      // (slope - offset) XOR SLOPE_BIAS (class table key)
     bit<16> level;          // = x (class table key)
     bit<2>  cls;            // verdict bits of this monitor
 }

@@ -10,11 +10,15 @@
  * control's name) -- the names civic/p4runtime.py looks up:
  *
  *   table  config        keyless; default action set_config(enabled,
- *                        signal, window, ring_len, lsq), set by the control
- *                        plane (initially set_config(0, 0, 0, 0, 0): the
- *                        slot is disabled and touches no register)
+ *                        signal, window, ring_len, lsq, aux_plus,
+ *                        aux_minus), set by the control plane (initially
+ *                        all 0: the slot is disabled and touches no
+ *                        register)
  *   table  precondition  l1 l2 l3 l4 p1 v1 v2 range -> qualify (q = 1);
  *                        miss -> disqualify (q = 0)
+ *   table  compensate    aux range (16 bit) -> set_offset(offset), the
+ *                        expected inflow in raw slope units; miss ->
+ *                        set_offset(0) (pipeline.md section 3a)
  *   table  classify      slope_key range (32 bit), level range (16 bit)
  *                        -> set_class(cls); miss -> default set_class(3),
  *                        the control plane sets the monitor's default_class
@@ -31,7 +35,8 @@
  *   old = ring[ptr]; ring[ptr] = x; ptr = (ptr + 1 == R) ? 0 : ptr + 1
  *   s1  = s1 + s0 - R * old          (s0 before its update)
  *   s0  = s0 + x - old
- *   slope, slope_key                 (slope.p4)
+ *   aux = max(x[aux_plus] - x[aux_minus], 0); offset = compensate(aux)
+ *   slope, slope_key = (slope - offset) ^ 2^31     (slope.p4)
  *   cls = run >= W ? classify(slope_key, x) : 0
  * The ring, pointer and sums are updated for every plant message,
  * qualifying or not; all bit<32> arithmetic is modular, as in the model.
@@ -60,20 +65,39 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
 
     // ------------------------------------------------------------ config
     action set_config(bit<1> enabled, bit<2> signal, bit<8> window,
-                      bit<8> ring_len, bit<1> lsq) {
+                      bit<8> ring_len, bit<1> lsq, bit<2> aux_plus,
+                      bit<2> aux_minus) {
         m.enabled = enabled;
         m.signal = signal;
         m.window = window;
         m.ring_len = ring_len;
         m.lsq = lsq;
+        m.aux_plus = aux_plus;
+        m.aux_minus = aux_minus;
     }
 
     table config {
         actions = {
             set_config;
         }
-        default_action = set_config(0, 0, 0, 0, 0);   // disabled
+        default_action = set_config(0, 0, 0, 0, 0, 0, 0);   // disabled
         size = 1;
+    }
+
+    // ------------------------------------------------------------ compensation
+    action set_offset(bit<32> offset) {
+        m.offset = offset;
+    }
+
+    table compensate {
+        key = {
+            m.aux: range @name("aux");
+        }
+        actions = {
+            set_offset;
+        }
+        default_action = set_offset(0);
+        size = COMPENSATE_TABLE_SIZE;
     }
 
     // ------------------------------------------------------------ precondition
@@ -160,6 +184,8 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
             s0.write(slot, m.s0);
             s1.write(slot, m.s1);
 
+            m.offset = 0;
+            compensate.apply();
             slope.apply(m);
 
             if (m.run >= m.window) {

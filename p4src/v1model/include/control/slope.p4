@@ -8,8 +8,10 @@
  *
  * Both are signed 32-bit values computed in bit<32> modular arithmetic,
  * which is two's complement: x - old < 0 wraps to 2^32 - |x - old|.
- * slope_key = slope XOR SLOPE_BIAS is the order-preserving unsigned key of
- * the class table. BMv2 multiplies at run time, so W comes from set_config.
+ * resid = slope - offset (the compensate table's expected inflow, section
+ * 3a; 0 on a miss) and slope_key = resid XOR SLOPE_BIAS, the order-
+ * preserving unsigned key of the class table. BMv2 multiplies at run
+ * time, so W comes from set_config.
  */
 #ifndef _CIVIC_V1MODEL_SLOPE_P4_
 #define _CIVIC_V1MODEL_SLOPE_P4_
@@ -21,7 +23,7 @@ control Slope(inout monitor_md_t m) {
         } else {
             m.slope = (bit<32>)m.x - (bit<32>)m.old;
         }
-        m.slope_key = m.slope ^ SLOPE_BIAS;
+        m.slope_key = (m.slope - m.offset) ^ SLOPE_BIAS;
     }
 }
 

@@ -21,7 +21,7 @@ $(VENV)/.installed: pyproject.toml
 demo: venv
 	mkdir -p $(OUT)
 	$(BIN)/civic train traces/training -o $(OUT)/entries.json
-	$(BIN)/civic crossval traces/training --sim --json $(OUT)/crossval.json
+	$(BIN)/civic crossval traces/training --json $(OUT)/crossval.json
 	$(BIN)/civic replay traces/training/*.pcap -o $(OUT)/replay --entries $(OUT)/entries.json
 	$(BIN)/civic evaluate $(OUT)/replay --labels traces/training/labels.csv \
 		--entries $(OUT)/entries.json --json $(OUT)/scores.json

@@ -7,6 +7,12 @@ with a power of the level, a closure scales it by a factor), picks thresholds
 on z for the best cost-weighted training accuracy with the widest margin, and
 writes them back as integer range entries on (slope, level) per level band.
 With `banded=False` (beta = 0, one band) it is the paper's 1-D slope table.
+
+With an `Envelope` (civic/envelope.py, the default of `civic train`), a monitor
+configured with `compensate` gets a compensate table from the calibrated plant
+model and its classes are learned on the compensated slope (slope - expected
+inflow, docs/pipeline.md 3a), from the recordings and the model's tests over the
+whole operating envelope.
 """
 from __future__ import annotations
 
@@ -20,6 +26,8 @@ from civic.config import Monitor, MonitorConfig
 from civic.entries import SLOPE_MAX, SLOPE_MIN, Entries, MonitorEntries
 from civic.errors import CivicError
 from civic.pipeline import SwitchModel
+from civic.pipeline.classification import compensate
+from civic.pipeline.slope import to_int32
 from civic.wire import CLASS_CODES, ip_to_int, read_pcap
 
 NAMES = {v: k for k, v in CLASS_CODES.items()}
@@ -38,6 +46,11 @@ class Run:
     slope: np.ndarray
     level: np.ndarray
     t: np.ndarray
+    aux: np.ndarray
+
+    def resid(self, offsets: np.ndarray) -> np.ndarray:
+        """The slope the class table sees once the compensate table's offsets are subtracted."""
+        return to_int32(self.slope - compensate(self.aux, offsets))
 
 
 def read_labels(path: str | Path) -> list[dict]:
@@ -60,17 +73,21 @@ def read_labels(path: str | Path) -> list[dict]:
     return rows
 
 
-def monitor_entries(mon: Monitor, estimator: str, rows=None, default_class=3) -> MonitorEntries:
+def monitor_entries(mon: Monitor, estimator: str, rows=None, default_class=3, offsets=None) -> MonitorEntries:
     table = np.zeros((0, 5), np.int64) if rows is None else np.asarray(rows, np.int64).reshape(-1, 5)
+    offsets = np.zeros((0, 3), np.int64) if offsets is None else offsets
     return MonitorEntries(name=mon.name, signal=mon.signal, window=mon.window,
-                          precondition=mon.precondition, estimator=estimator,
-                          default_class=default_class, classes=table)
+                          precondition=mon.precondition, compensate=mon.compensate if len(offsets) else None,
+                          estimator=estimator, default_class=default_class, classes=table, offsets=offsets)
 
 
 def probe_entries(config: MonitorConfig, estimator: str) -> Entries:
-    """Entries with empty class tables: the switch computes runs and slopes, every verdict says error."""
-    return Entries(monitors=[monitor_entries(m, estimator) for m in config.monitors],
-                   udp_port=config.udp_port, plant_prefix=config.plant_prefix)
+    """Entries with empty class and compensate tables: the switch computes runs, slopes and the
+    compensate key aux, every verdict says error."""
+    monitors = [monitor_entries(m, estimator) for m in config.monitors]
+    for m, mon in zip(monitors, config.monitors):
+        m.compensate = mon.compensate          # aux computed, nothing subtracted
+    return Entries(monitors=monitors, udp_port=config.udp_port, plant_prefix=config.plant_prefix)
 
 
 def collect_runs(folder: str | Path, labels: list[dict], config: MonitorConfig, estimator: str) -> list[Run]:
@@ -93,8 +110,24 @@ def collect_runs(folder: str | Path, labels: list[dict], config: MonitorConfig, 
             keep &= msgs["src"][idx] == ip_to_int(row["src_ip"])
         runs.append(Run(file=row["file"], src=row.get("src_ip", ""), monitor=row["monitor"],
                         cls=CLASS_CODES[row["class"]], slope=tr.slope[keep], level=tr.level[keep],
-                        t=msgs["t"][idx][keep]))
+                        t=msgs["t"][idx][keep], aux=tr.aux[keep]))
     return runs
+
+
+def envelope_runs(envelope, config: MonitorConfig, estimator: str) -> list[Run]:
+    """The evaluated windows of every test the envelope simulates, per configured monitor."""
+    out = []
+    for m, mon in enumerate(config.monitors):
+        single = MonitorConfig([Monitor(mon.name, mon.signal, mon.window, mon.precondition, mon.compensate)],
+                               config.udp_port, config.plant_prefix)
+        probe = SwitchModel(probe_entries(single, estimator))
+        for i, (cls, msgs) in enumerate(envelope.runs(mon.name)):
+            probe.reset()
+            _, (tr,) = probe.traces(msgs)
+            keep = tr.evaluated
+            out.append(Run(file=f"model:{mon.name}:{i}", src="", monitor=mon.name, cls=cls, slope=tr.slope[keep],
+                           level=tr.level[keep], t=msgs["t"][keep], aux=tr.aux[keep]))
+    return out
 
 
 def _cost(true: np.ndarray, pred: np.ndarray) -> np.ndarray:
@@ -241,37 +274,70 @@ class BandClassifier:
         return float(np.mean(self.predict(slope, level) == np.asarray(y)))
 
 
-def fit_monitor(mon: Monitor, runs: list[Run], estimator: str, banded: bool) -> tuple[MonitorEntries, BandClassifier]:
+def offsets_for(mon: Monitor, estimator: str, envelope) -> np.ndarray:
+    """The monitor's compensate table from the calibrated model (empty: not compensated)."""
+    if envelope is None or mon.compensate is None:
+        return np.zeros((0, 3), np.int64)
+    from civic.envelope import compensation_table
+
+    probe = monitor_entries(mon, estimator)
+    step = mon.window - 1 if estimator == "lsq" else 1
+    return compensation_table(envelope.model_, *mon.compensate, probe.slope_scale, step)
+
+
+def fit_monitor(mon: Monitor, runs: list[Run], estimator: str, banded: bool,
+                offsets: np.ndarray | None = None) -> tuple[MonitorEntries, BandClassifier]:
     mine = [r for r in runs if r.monitor == mon.name and len(r.slope)]
     if not mine:
         raise CivicError(f"no evaluated training windows for monitor {mon.name!r}")
-    slope = np.concatenate([r.slope for r in mine])
+    offsets = np.zeros((0, 3), np.int64) if offsets is None else offsets
+    resid = np.concatenate([r.resid(offsets) for r in mine])
     level = np.concatenate([r.level for r in mine])
     y = np.concatenate([np.full(len(r.slope), r.cls) for r in mine])
     lrange = mon.precondition.get(mon.signal, (0, 0xFFFF))
-    clf = BandClassifier(banded=banded).fit(slope, level, y, level_range=lrange)
-    return monitor_entries(mon, estimator, clf.rows_, ABOVE_NORMAL), clf
+    clf = BandClassifier(banded=banded).fit(resid, level, y, level_range=lrange)
+    return monitor_entries(mon, estimator, clf.rows_, ABOVE_NORMAL, offsets), clf
 
 
-def train(runs: list[Run], config: MonitorConfig, estimator: str, banded: bool) -> Entries:
+def train(runs: list[Run], config: MonitorConfig, estimator: str, banded: bool, envelope=None) -> Entries:
+    """Class tables from the recordings' windows, with an envelope: compensated, over the envelope."""
     for mon in config.monitors:
         if not any(r.monitor == mon.name for r in runs):
             raise CivicError(f"labels have no recording for monitor {mon.name!r} (drop it from the monitors file)")
-    monitors = [fit_monitor(mon, runs, estimator, banded)[0] for mon in config.monitors]
+    simulated = envelope_runs(envelope, config, estimator) if envelope is not None else []
+    monitors = [fit_monitor(mon, runs + simulated, estimator, banded, offsets_for(mon, estimator, envelope))[0]
+                for mon in config.monitors]
+    training = {"estimator": estimator, "banded": banded, "runs": sorted({r.file for r in runs})}
+    if envelope is not None:
+        training["calibrated"] = envelope.calibrated_
+        training["envelope"] = {"start_levels_l": {k: list(map(float, v)) for k, v in envelope.start_levels.items()},
+                                "units_per_case": envelope.units, "unit_spread": envelope.spread,
+                                "simulated_runs": len(simulated)}
     return Entries(monitors=monitors, udp_port=config.udp_port, plant_prefix=config.plant_prefix,
-                   training={"estimator": estimator, "banded": banded,
-                             "runs": sorted({r.file for r in runs})})
+                   training=training)
 
 
-MODES = (("endpoint", False), ("lsq", False), ("endpoint", True), ("lsq", True))  # paper mode first
 
 
-def leave_one_run_out(runs: list[Run], mon: Monitor, estimator: str, banded: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Pooled (true, predicted) classes, each run predicted by a table trained without it."""
+def predict_run(entries: MonitorEntries, run: Run) -> np.ndarray:
+    """The classes the switch gives a run's windows under these entries (compensated as they say)."""
+    from civic.pipeline.classification import classify
+    return classify(run.resid(entries.offsets), run.level, entries.classes, entries.default_class)
+
+
+def leave_one_run_out(runs: list[Run], mon: Monitor, estimator: str, banded: bool,
+                      envelope_without=None) -> tuple[np.ndarray, np.ndarray]:
+    """Pooled (true, predicted) classes, each run predicted by a table trained without it.
+
+    envelope_without(file) -> Envelope calibrated without that recording: the calibrated mode."""
     mine = [r for r in runs if r.monitor == mon.name and len(r.slope)]
+    single = MonitorConfig([mon])
     true, pred = [], []
     for i, held in enumerate(mine):
-        _, clf = fit_monitor(mon, mine[:i] + mine[i + 1:], estimator, banded)
+        rest = mine[:i] + mine[i + 1:]
+        env = envelope_without(held.file) if envelope_without else None
+        simulated = envelope_runs(env, single, estimator) if env is not None else []
+        entries, _ = fit_monitor(mon, rest + simulated, estimator, banded, offsets_for(mon, estimator, env))
         true.append(np.full(len(held.slope), held.cls))
-        pred.append(clf.predict(held.slope, held.level))
+        pred.append(predict_run(entries, held))
     return np.concatenate(true), np.concatenate(pred)

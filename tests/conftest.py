@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from data import TRAINING
+from data import ROOT, TRAINING
 
 
 @pytest.fixture(scope="session")
@@ -18,11 +18,16 @@ def training_runs():
 
 @pytest.fixture(scope="session")
 def trained_entries(training_runs):
-    """Entries from `civic train` defaults (lsq, banded) on the bundled recordings."""
+    """Entries from `civic train` defaults (lsq, banded, calibrated) on the bundled recordings."""
     from civic.config import load_monitors
-    from civic.train import train
+    from civic.envelope import Envelope, load_recorded
+    from civic.plant.model import PlantModel
+    from civic.train import read_labels, train
 
-    return train(training_runs["lsq"], load_monitors(), "lsq", True)
+    config = load_monitors()
+    recorded = load_recorded(TRAINING, read_labels(TRAINING / "labels.csv"), config.udp_port, config.plant_prefix)
+    envelope = Envelope(PlantModel.from_toml(ROOT / "configs/plant.toml")).fit(recorded)
+    return train(training_runs["lsq"], config, "lsq", True, envelope)
 
 
 @pytest.fixture(scope="session")

@@ -8,7 +8,7 @@ from civic.config import load_monitors
 from civic.entries import SLOPE_MAX, SLOPE_MIN, load_entries
 from civic.evaluate import score
 from civic.pipeline.classification import classify
-from civic.train import MODES, leave_one_run_out
+from civic.train import leave_one_run_out
 
 
 @pytest.mark.parametrize("monitor", ["drain_t3", "fill_t1"])
@@ -20,7 +20,7 @@ def test_default_mode_reaches_macro_f1_099_leave_one_run_out(training_runs, moni
 
 def test_paper_mode_confuses_drain_classes_and_bands_fix_it(training_runs):
     mon = load_monitors().monitors[0]
-    paper = score(*leave_one_run_out(training_runs["endpoint"], mon, *MODES[0]))
+    paper = score(*leave_one_run_out(training_runs["endpoint"], mon, "endpoint", False))
     banded = score(*leave_one_run_out(training_runs["endpoint"], mon, "endpoint", True))
     assert paper["macro_f1"] < 0.9 < banded["macro_f1"]
 
@@ -45,11 +45,13 @@ def test_entries_round_trip(trained_entries, tmp_path):
 
 
 def test_drain_boundaries_follow_the_level(trained_entries):
-    """At a lower level a slower drain is still normal (Torricelli), so the table must say so."""
+    """At a lower level a slower outflow is still normal (Torricelli), so the table must say so.
+    The class table sees the outflow: the slope minus the compensated inflow from T2."""
     mon = trained_entries.monitors[0]
-    normal_high = -380 / mon.slope_scale   # mL/s -> raw, typical normal slope near 5.5 L
-    normal_low = -240 / mon.slope_scale    # typical normal slope near 3.2 L
+    assert mon.compensate == ("l2", "l3") and len(mon.offsets)
+    normal_high = -0.30 * np.sqrt(5.5 / 2) * 1000 / mon.slope_scale   # datasheet outflow at 5.5 L, raw
+    normal_low = -0.30 * np.sqrt(3.2 / 2) * 1000 / mon.slope_scale    # ... at 3.2 L
     got = classify(np.array([normal_high, normal_low]).astype(int), np.array([5500, 3200]), mon.classes, 3)
     assert got.tolist() == [1, 1]
-    # the same slow slope high up is a clogged drain
+    # the same slow outflow high up is a clogged drain
     assert classify(np.array([int(normal_low)]), np.array([6500]), mon.classes, 3)[0] >= 2

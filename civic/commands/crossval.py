@@ -1,4 +1,11 @@
-"""civic crossval: leave-one-run-out scores of every training mode, side by side."""
+"""civic crossval: the paper's mode, the previous default and the default, side by side.
+
+Scored on leave-one-run-out of the recordings (every table trained without the run
+it classifies; the default's calibration too), and, unless --no-sim, on simulated
+tests the recordings lack: drain tests from every start level 5.0-9.5 L, fill tests,
+each on its own unit (coefficients within ±3 % of the datasheet), and a 64-plant
+capture. Simulated tests go through the switch model with the trained entries.
+"""
 from __future__ import annotations
 
 import json
@@ -6,104 +13,117 @@ from pathlib import Path
 
 from civic.errors import CivicError
 
+# mode -> (estimator, banded, calibrate); the paper's first
+MODES = {"paper": ("endpoint", False, False), "previous default": ("lsq", True, False),
+         "default": ("lsq", True, True)}
+SIM_RUNS = 3          # simulated tests per class and start level
+FLEET_PLANTS = 64
+
 
 def register(sub) -> None:
-    p = sub.add_parser("crossval", help="leave-one-run-out comparison of paper mode and improved modes")
+    p = sub.add_parser("crossval", help="compare the paper's mode and the defaults on recordings and simulated tests")
     p.add_argument("training_dir", metavar="TRAINING_DIR")
     p.add_argument("--labels", metavar="FILE", help="labels CSV (default: TRAINING_DIR/labels.csv)")
     p.add_argument("--monitors", metavar="FILE")
     p.add_argument("--json", metavar="FILE")
-    p.add_argument("--sim", action="store_true",
-                   help="also score every mode on simulated tests from start levels 6.0-8.5 L, "
-                        "and tables derived from the plant model alone")
-    p.add_argument("--model", metavar="FILE", help="plant model for --sim (default: configs/plant.toml)")
+    p.add_argument("--no-sim", dest="sim", action="store_false",
+                   help="leave-one-run-out only (no simulated start levels, units, fleet)")
+    p.add_argument("--spread", type=float, default=0.03, metavar="F",
+                   help="unit coefficient spread of the simulated tests (default 0.03)")
+    p.add_argument("--seed", type=int, default=7000)
+    p.add_argument("--model", metavar="FILE", help="plant model (default: configs/plant.toml)")
     p.set_defaults(func=run)
+
+
+def cell(s: dict) -> str:
+    return f"{s['macro_f1']:.3f} / {s['classes']['error']['recall']:.3f}" if s else "-"
 
 
 def run(args) -> int:
     from rich.table import Table
 
+    from civic.commands.simulate import default_model_path
     from civic.config import load_monitors
+    from civic.envelope import Envelope, load_recorded
     from civic.evaluate import score
-    from civic.report import console
-    from civic.train import MODES, collect_runs, leave_one_run_out, read_labels
+    from civic.plant.model import PlantModel
+    from civic.report import console, progress_bar
+    from civic.train import collect_runs, leave_one_run_out, read_labels, train
 
     folder = Path(args.training_dir)
     if not folder.is_dir():
         raise CivicError(f"{folder}: not a directory")
+    if not 0 <= args.spread < 0.5:
+        raise CivicError(f"--spread {args.spread}: expected a fraction in [0, 0.5)")
     labels = read_labels(args.labels or folder / "labels.csv")
     config = load_monitors(args.monitors)
-    runs = {est: collect_runs(folder, labels, config, est) for est in {m[0] for m in MODES}}
-    report = {}
-    table = Table(title="leave-one-run-out macro F1 (accuracy)", title_justify="left")
-    table.add_column("monitor")
-    for est, banded in MODES:
-        table.add_column(f"{est}, {'banded' if banded else '1-D'}" + (" (paper)" if (est, banded) == MODES[0] else ""),
-                         justify="right")
-    for mon in config.monitors:
-        if not any(r.monitor == mon.name for r in runs["lsq"]):
-            continue
-        cells = []
-        for est, banded in MODES:
-            s = score(*leave_one_run_out(runs[est], mon, est, banded))
-            report.setdefault(mon.name, {})[f"{est}_{'banded' if banded else '1d'}"] = s
-            cells.append(f"{s['macro_f1']:.3f} ({s['accuracy']:.3f})")
-        table.add_row(mon.name, *cells)
-    console.print(table)
+    model = PlantModel.from_toml(args.model or default_model_path())
+    runs = {est: collect_runs(folder, labels, config, est) for est in {m[0] for m in MODES.values()}}
+    recorded = load_recorded(folder, labels, config.udp_port, config.plant_prefix)
+    monitors = [m for m in config.monitors if any(r.monitor == m.name for r in runs["lsq"])]
+
+    def envelope_without(file: str) -> Envelope:
+        return Envelope(model).fit([r for r in recorded if r.file != file])
+
+    report: dict = {"modes": {k: dict(zip(("estimator", "banded", "calibrate"), v)) for k, v in MODES.items()},
+                    "leave_one_run_out": {}}
+    with progress_bar() as progress:
+        task = progress.add_task("leave-one-run-out", total=len(MODES) * len(monitors))
+        for mode, (est, banded, cal) in MODES.items():
+            for mon in monitors:
+                s = score(*leave_one_run_out(runs[est], mon, est, banded, envelope_without if cal else None))
+                report["leave_one_run_out"].setdefault(mon.name, {})[mode] = s
+                progress.advance(task)
     if args.sim:
-        report["simulated"] = simulated_scores(runs, config, args.model)
+        entries = {mode: train(runs[est], config, est, banded, Envelope(model).fit(recorded) if cal else None)
+                   for mode, (est, banded, cal) in MODES.items()}
+        report["simulated"] = simulated_scores(entries, model, args.spread, args.seed)
+
+    table = Table(title="macro F1 / error recall", title_justify="left")
+    table.add_column("test set")
+    for mode in MODES:
+        table.add_column(mode, justify="right")
+    for name, by_mode in report["leave_one_run_out"].items():
+        table.add_row(f"{name}, leave-one-run-out (recordings)", *(cell(by_mode[m]) for m in MODES))
+    for name, by_mode in report.get("simulated", {}).items():
+        table.add_row(name, *(cell(by_mode.get(m)) for m in MODES))
+    console.print(table)
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
     return 0
 
 
-def simulated_scores(runs: dict, config, model_path: str | None) -> dict:
-    """Every mode trained on the recordings, and lsq/banded trained on the model, scored on simulated tests."""
-    import tempfile
-
+def simulated_scores(entries: dict, model, spread: float, seed: int) -> dict:
+    """Score every mode's entries on simulated tests through the switch model."""
     import numpy as np
-    from rich.table import Table
 
-    from civic.commands.simulate import default_model_path
-    from civic.evalsets import DRAIN_LEVELS, simulate_set
+    from civic.evalsets import ENVELOPE_LEVELS, fleet, unit_tests
     from civic.evaluate import score
-    from civic.plant.model import PlantModel
-    from civic.report import console
-    from civic.train import MODES, collect_runs, fit_monitor, read_labels
+    from civic.pipeline import SwitchModel
+    from civic.report import progress_bar
 
-    model = PlantModel.from_toml(model_path or default_model_path())
-    with tempfile.TemporaryDirectory(prefix="civic-sim-") as tmp:
-        labels = read_labels(simulate_set(Path(tmp) / "eval", model, runs=2, seed=7000))
-        evals = {est: collect_runs(Path(tmp) / "eval", labels, config, est) for est in runs}
-        train_labels = read_labels(simulate_set(Path(tmp) / "train", model, runs=3, seed=9000))
-        from_model = collect_runs(Path(tmp) / "train", train_labels, config, "lsq")
-    sources = [(f"{est}, {'banded' if b else '1-D'} (recordings)", runs[est], est, b) for est, b in MODES]
-    sources.append(("lsq, banded (model only)", from_model, "lsq", True))
-    levels = ", ".join(f"{v:g}" for v in DRAIN_LEVELS)
-    table = Table(title=f"macro F1 on simulated tests (drain from {levels} L; fill)", title_justify="left")
-    table.add_column("trained as")
-    names = [m.name for m in config.monitors if any(r.monitor == m.name for r in evals["lsq"])]
-    for n in names:
-        table.add_column(f"{n} (sim)", justify="right")
-    for n in names:
-        table.add_column(f"{n} (recordings)", justify="right")
-    def scored(clf, held_runs, name):
-        held = [r for r in held_runs if r.monitor == name and len(r.slope)]
-        return score(np.concatenate([np.full(len(r.slope), r.cls) for r in held]),
-                     np.concatenate([clf.predict(r.slope, r.level) for r in held]))
-
-    out = {}
-    for label, train_runs, est, banded in sources:
-        sim_cells, real_cells = [], []
-        for mon in (m for m in config.monitors if m.name in names):
-            _, clf = fit_monitor(mon, train_runs, est, banded)
-            s = out.setdefault(label, {})[mon.name] = scored(clf, evals[est], mon.name)
-            sim_cells.append(f"{s['macro_f1']:.3f}")
-            if train_runs is from_model:  # model-only tables meet the real recordings
-                s = out[label][mon.name + "_on_recordings"] = scored(clf, runs[est], mon.name)
-                real_cells.append(f"{s['macro_f1']:.3f}")
-            else:
-                real_cells.append("see LORO")
-        table.add_row(label, *sim_cells, *real_cells)
-    console.print(table)
+    sets = {f"drain_t3, drain from {v0:.1f} L (units ±{spread:.0%})": unit_tests(model, "drain", v0, SIM_RUNS,
+                                                                                  spread, seed)
+            for v0 in ENVELOPE_LEVELS}
+    sets[f"fill_t1, fill tests (units ±{spread:.0%})"] = unit_tests(model, "fill", None, SIM_RUNS, spread, seed)
+    sets[f"drain_t3, {FLEET_PLANTS} plants in one capture"] = [fleet(model, FLEET_PLANTS, spread, seed)]
+    out: dict = {}
+    with progress_bar() as progress:
+        task = progress.add_task("simulated tests", total=len(sets) * len(entries))
+        for name, tests in sets.items():
+            for mode, ent in entries.items():
+                names = [m.name for m in ent.monitors]
+                true, pred = [], []
+                for group in tests:
+                    group = group if isinstance(group, list) else [group]
+                    msgs = np.concatenate([t.msgs for t in group])
+                    msgs = msgs[np.argsort(msgs["t"], kind="stable")]
+                    _, traces = SwitchModel(ent).traces(msgs)
+                    for t in group:
+                        tr = traces[names.index(t.monitor)]
+                        mine = (msgs["src"] == t.msgs["src"][0]) & tr.evaluated
+                        true.append(np.full(int(mine.sum()), t.cls))
+                        pred.append(tr.code[mine])
+                out.setdefault(name, {})[mode] = score(np.concatenate(true), np.concatenate(pred))
+                progress.advance(task)
     return out

@@ -92,8 +92,9 @@ def edge_frames() -> list[bytes]:
 
 
 def sequence_edges(src="10.0.0.9") -> list[bytes]:
-    """One plant's drain-like messages across the 32-bit wrap-around, with gaps and a repeat."""
+    """One plant's drain-like messages across the 32-bit wrap-around, with gaps and a repeat; L2
+    sweeps 0..65535 so that aux = max(L2 - L3, 0) is 0 (saturated) and hits every compensate range."""
     seqs = ([0xFFFFFFFF - 24 + i for i in range(25)] + list(range(0, 30))      # wrap: no gap
             + list(range(33, 60)) + [59] + list(range(60, 90)))                # a gap, a repeated seq
-    return [bytes(plant(src=src, seq=s, l3=7000 - 25 * i, v2=1000, l2=3000, l1=2000, l4=20000))
+    return [bytes(plant(src=src, seq=s, l3=7000 - 25 * i, v2=1000, l2=(i * i * 7) % 65536, l1=2000, l4=20000))
             for i, s in enumerate(seqs)]

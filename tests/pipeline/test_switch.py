@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from civic.entries import Entries
+from civic.entries import Entries, parse_entries
 from civic.pipeline import SwitchModel
 from civic.pipeline.data_collection import RingState, window_sums
-from civic.wire import build_frames, monitor_verdict, read_pcap, write_pcap
+from civic.wire import MESSAGE_DTYPE, build_frames, monitor_verdict, read_pcap, write_pcap
 from data import DIAGNOSE, TRAINING
 from frames import interleave
 
@@ -115,3 +115,22 @@ def test_unknown_plants_and_other_prefixes(trained_entries, tmp_path):
     moved = Entries(monitors=trained_entries.monitors, plant_prefix="10.0.1.0/24")
     msgs = read_pcap(tmp_path / "u.pcap", plant_prefix=moved.plant_prefix).messages
     assert msgs["plant"].all() and np.any(SwitchModel(moved).run(msgs) != 0)
+
+
+@pytest.mark.parametrize("l2_minus_l3, cls", [(150, 1), (100, 1), (200, 1), (99, 2), (201, 2), (-50, 2), (0, 2)])
+def test_compensation_subtracts_the_offset_of_the_aux_range(l2_minus_l3, cls):
+    """Flat L3 gives slope 0, so the class table sees -offset: offset 19000 for aux in [100, 200],
+    0 on a miss (and aux saturates at 0 when L2 < L3)."""
+    raw = {"format": "civic-entries/2", "monitors": [{
+        "name": "m", "signal": "l3", "window": 20, "estimator": "lsq",
+        "compensation": {"signal": "l2", "minus": "l3", "offsets": [{"aux": [100, 200], "offset": 19000}]},
+        "classes": [{"slope": [-2147483648, -1], "class": 1}, {"slope": [0, 2147483647], "class": 2}]}]}
+    n = 30
+    msgs = np.zeros(n, MESSAGE_DTYPE)
+    msgs["plant"], msgs["src"], msgs["seq"] = True, 0x0A000001, np.arange(1, n + 1)
+    msgs["l3"] = 5000
+    msgs["l2"] = 5000 + l2_minus_l3
+    model = SwitchModel(parse_entries(raw, "t"))
+    code = monitor_verdict(model.run(msgs), 0)
+    assert np.all(code[:19] == 0) and np.all(code[19:] == cls)
+    assert np.array_equal(model.run_plain(msgs), model.run(msgs))

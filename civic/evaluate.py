@@ -57,6 +57,7 @@ class ScoredRun(NamedTuple):
     slope: np.ndarray     # mL/s
     level: np.ndarray     # mL
     code: np.ndarray      # verdict code of this monitor
+    resid: np.ndarray     # mL/s: the slope the class table sees (minus the compensated inflow)
 
 
 @dataclass
@@ -127,25 +128,29 @@ def evaluate(out: str | Path, labels: list[dict], config: MonitorConfig | Entrie
         if len(start) and len(hit):
             res.delays[cls].append(float(t[hit[0]] - t[start[0]]))
         res.runs.append(ScoredRun(f"{row['file']} {row.get('src_ip', '')}".strip(), cls, t - t[0] if len(t) else t,
-                                  tr.slope[sel] * tr.monitor.slope_scale, tr.level[sel], code))
+                                  tr.slope[sel] * tr.monitor.slope_scale, tr.level[sel], code,
+                                  tr.resid[sel] * tr.monitor.slope_scale))
     if matched == 0:
         raise CivicError(f"{out}: none of the labelled recordings found there")
     return results
 
 
 def plot_monitor(res: MonitorResult, path: Path, entries_monitor=None) -> None:
-    """Slope over time per run (coloured by true class) and, with entries, the class regions."""
+    """Slope over time per run (coloured by true class) and, with entries, the decision the switch
+    makes: its compensate table (expected inflow against aux) when it has one, and its class regions
+    over (compensated slope, level)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     colors = {1: "tab:green", 2: "tab:orange", 3: "tab:red"}
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5))
+    compensated = entries_monitor is not None and len(entries_monitor.offsets) > 0
+    fig, axes = plt.subplots(1, 3 if compensated else 2, figsize=(19 if compensated else 13, 5))
     ax = axes[0]
-    for label, cls, t, s, _lvl, code in res.runs:
-        ev = code != 0
-        ax.plot(t[ev], s[ev], ".", ms=2, color=colors[cls], alpha=0.6)
-    if entries_monitor is not None and len(np.unique(entries_monitor.classes[:, 2])) == 1:
+    for run in res.runs:
+        ev = run.code != 0
+        ax.plot(run.t[ev], run.slope[ev], ".", ms=2, color=colors[run.cls], alpha=0.6)
+    if entries_monitor is not None and not compensated and len(np.unique(entries_monitor.classes[:, 2])) == 1:
         # a 1-D table: its slope ranges are horizontal bands over time
         lo_y, hi_y = ax.get_ylim()
         for lo, hi, _, _, c in entries_monitor.classes:
@@ -157,11 +162,21 @@ def plot_monitor(res: MonitorResult, path: Path, entries_monitor=None) -> None:
            ylabel="slope (mL/s)")
     ax.legend(handles=[plt.Line2D([], [], marker="o", ls="", color=c, label=NAMES[k]) for k, c in colors.items()],
               title="true class")
-    ax = axes[1]
+    if compensated:
+        ax = axes[1]
+        plus, minus = entries_monitor.compensate
+        rows = entries_monitor.offsets
+        top = min(int(rows[-1, 0]) + 1000, 0xFFFF)
+        edges = np.concatenate([[r[0], min(r[1], top) + 1] for r in rows])
+        values = np.repeat(rows[:, 2] * entries_monitor.slope_scale, 2)
+        ax.plot(edges, values, color="k", lw=1)
+        ax.set(title=f"compensate table: expected inflow vs aux = {plus} - {minus}",
+               xlabel=f"aux = max({plus} - {minus}, 0) (mL)", ylabel="offset (mL/s)", xlim=(0, top))
+    ax = axes[-1]
     if entries_monitor is not None and len(entries_monitor.classes):
         scale = entries_monitor.slope_scale
         lv = np.concatenate([r.level[r.code != 0] for r in res.runs])
-        sv = np.concatenate([r.slope[r.code != 0] for r in res.runs])
+        sv = np.concatenate([r.resid[r.code != 0] for r in res.runs])
         lmin, lmax = (lv.min() - 500, lv.max() + 500) if len(lv) else (0, 10000)
         smin, smax = (sv.min() * 1.3, sv.max() * 1.3) if len(sv) else (-1, 1)
         smin, smax = min(smin, smax, 0), max(smin, smax, 0)
@@ -172,10 +187,11 @@ def plot_monitor(res: MonitorResult, path: Path, entries_monitor=None) -> None:
                 ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, color=colors[int(c)], alpha=0.15, lw=0))
         ax.set_xlim(lmin, lmax)
         ax.set_ylim(smin, smax)
-    for label, cls, t, s, lvl, code in res.runs:
-        ev = code != 0
-        ax.plot(lvl[ev], s[ev], ".", ms=2, color=colors[cls], alpha=0.6)
-    ax.set(title="slope vs level with the class table (shaded)", xlabel="level (mL)", ylabel="slope (mL/s)")
+    for run in res.runs:
+        ev = run.code != 0
+        ax.plot(run.level[ev], run.resid[ev], ".", ms=2, color=colors[run.cls], alpha=0.6)
+    what = "slope - expected inflow" if compensated else "slope"
+    ax.set(title=f"{what} vs level with the class table (shaded)", xlabel="level (mL)", ylabel=f"{what} (mL/s)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -808,7 +808,9 @@ def test_configures_what_civic_train_writes(servicer, tmp_path, capsys, trained_
     writes = len(servicer.writes)
     res = p4rt.configure(servicer.address, path)
     assert res.writes == 0 and len(servicer.writes) == writes
-    assert res.unchanged == sum(n_classes) + len(entries.monitors) + 4 + 8
+    n_offsets = sum(len(m.offsets) for m in entries.monitors)
+    assert n_offsets > 0                                        # the default compensates drain_t3
+    assert res.unchanged == sum(n_classes) + n_offsets + len(entries.monitors) + 4 + 8
 
 
 def test_padded_byte_strings_for_old_servers(servicer, tmp_path, capsys):

@@ -12,6 +12,8 @@
  *  - precondition is split in two tables (precondition: l1..l4,
  *    precondition_cmd: p1 v1 v2) and classify matches slope_key as two
  *    16-bit halves: bf-p4c's range-match limits;
+ *  - compensate's set_offset takes the key bias minus the offset (the
+ *    offset rides in the bias added in stage 4: no extra stage);
  *  - the verdict word and the UDP checksum are written in egress
  *    (control/verdict.p4), from a 3-byte bridge header;
  *  - ring cells are 32 bit wide.
@@ -21,10 +23,10 @@
  * Ingress stage plan as bf-p4c 9.13.4 placed it (both slots in each stage):
  *   0  forward, monitored_port, plant_prefix, seq - 1, monK.config,
  *      monK.precondition_cmd, mon1.precondition
- *   1  last_seq (gap), ptr, x (by signal), mon0.precondition
- *   2  ring (old), x widened to 32 bit
+ *   1  last_seq (gap), ptr, x (by signal), aux, mon0.precondition
+ *   2  ring (old), x widened to 32 bit, compensate (bias)
  *   3  run, d = x - old, R*old shifts           (endpoint: slope_key)
- *   4  s0, R*old adds, e = d + B
+ *   4  s0, R*old adds, e = d + bias (B - offset / (W - 1))
  *   5  R*old, s0n = s0 + e, t (mon0)
  *   6  t = s0 - R*old, s1 (mon0), (W-1)*s0n shifts
  *   7  s1 (mon1), (W-1)*s0n adds, 2*s1
@@ -89,6 +91,13 @@
 @pa_solitary("ingress", "meta.mon0.q_cmd")
 @pa_solitary("ingress", "meta.mon1.q")
 @pa_solitary("ingress", "meta.mon1.q_cmd")
+// The two slots' config tables write their fields in stage 0: `enabled`
+// (which the allocator would otherwise pack with the other slot's and with
+// drop_ctl, written by forward) gets a container of its own.
+@pa_solitary("ingress", "meta.mon0.enabled")
+@pa_solitary("ingress", "meta.mon1.enabled")
+@pa_container_size("ingress", "meta.mon0.bias", 32)
+@pa_container_size("ingress", "meta.mon1.bias", 32)
 @pa_container_size("ingress", "hdr.bridge.cls0", 8)
 @pa_container_size("ingress", "hdr.bridge.cls1", 8)
 

@@ -122,6 +122,8 @@ def derived_names(src: str, top: str = "CivicIngress") -> dict[str, str]:
     def walk(ctl: str, prefix: str) -> None:
         decls = top_level_decls(bodies[ctl])
         for m in CP_OBJECT.finditer(decls):
+            if decls[:m.start()].rstrip().endswith("@hidden"):
+                continue                  # @hidden: no control-plane name
             anno, table, action, register = m.groups()
             local = table or action or register
             kind = "table" if table else "action" if action else "register"

@@ -103,6 +103,7 @@ def test_control_plane_objects(build):
         want[f"{m}.precondition_cmd"] = ["p1", "v1", "v2", "$MATCH_PRIORITY"]
         # TNA: the 32-bit slope_key range as two 16-bit halves (range keys <= 4 nibbles)
         want[f"{m}.classify"] = ["slope_key_hi", "slope_key_lo", "level", "$MATCH_PRIORITY"]
+        want[f"{m}.compensate"] = ["aux", "$MATCH_PRIORITY"]
     for name, keys in want.items():
         assert name in tables, name
         assert [k["name"] for k in tables[name]["key"]] == keys, name
@@ -110,10 +111,14 @@ def test_control_plane_objects(build):
     assert match_tables == set(want), "no @hidden step table may reach the control plane"
     for k in range(TNA_MONITORS):
         m = f"pipe.CivicIngress.mon{k}"
-        for name in ("precondition", "precondition_cmd", "classify"):
+        for name in ("precondition", "precondition_cmd", "classify", "compensate"):
             assert {key["match_type"] for key in tables[f"{m}.{name}"]["key"][:-1]} == {"Range"}
         actions = {a["name"]: [d["name"] for d in a.get("data", [])] for a in tables[f"{m}.config"]["action_specs"]}
-        assert actions == {f"CivicIngress.mon{k}.set_config": ["enabled", "signal", "window", "ring_len", "lsq"]}
+        assert actions == {f"CivicIngress.mon{k}.set_config": ["enabled", "signal", "window", "ring_len", "lsq",
+                                                               "aux_plus", "aux_minus"]}
+        # TNA's set_offset takes the bias the control plane derives from the offset (monitor.p4)
+        actions = {a["name"]: [d["name"] for d in a.get("data", [])] for a in tables[f"{m}.compensate"]["action_specs"]}
+        assert actions == {f"CivicIngress.mon{k}.set_offset": ["bias"]}
         actions = {a["name"] for a in tables[f"{m}.classify"]["action_specs"]}
         assert actions == {f"CivicIngress.mon{k}.set_class"}
 

@@ -9,8 +9,8 @@
  * Changing a window means editing this file and recompiling.
  *
  * The control plane still sets CivicIngress.monK.config's default action
- * set_config(enabled, signal, window, ring_len, lsq) as on v1model, but on
- * TNA only `enabled` and `signal` are used; window, ring_len and lsq must
+ * set_config(enabled, signal, window, ring_len, lsq, aux_plus, aux_minus) as
+ * on v1model, but on TNA window, ring_len and lsq are not used; they must
  * equal the constants below (civic configure should check this) and are
  * otherwise ignored.
  *
@@ -23,8 +23,10 @@
  * tests/p4/test_tna_compile.py checks MONk_S0_BIAS.
  *
  * MONk_S0_BIAS = 2^(31 - k), 2^k the largest power of two dividing W - 1
- * (lsq only): the slope key's bias 2^31 rides through the product,
- * (W - 1) * (s0' + MONk_S0_BIAS) = (W - 1) * s0' + 2^31 (mod 2^32).
+ * (lsq): the slope key's bias 2^31 rides through the product,
+ * (W - 1) * (s0' + MONk_S0_BIAS) = (W - 1) * s0' + 2^31 (mod 2^32); for an
+ * endpoint slot it is 2^31 itself. It is also the compensate table's
+ * default (offset 0).
  *
  * Defaults: the two monitors of configs/monitors.toml with the lsq
  * estimator (civic train's default).
@@ -62,5 +64,7 @@
 // tables smaller than on v1model (a trained class table has tens of rows).
 #define TNA_PRECONDITION_TABLE_SIZE 64
 #define TNA_CLASSIFY_TABLE_SIZE 256
+// civic train writes about 70 compensate ranges (16-bit key)
+#define TNA_COMPENSATE_TABLE_SIZE 128
 
 #endif  /* _CIVIC_TNA_CONFIG_P4_ */

@@ -48,7 +48,11 @@ struct monitor_md_t {
     bit<8>  window;         // set_config parameters that TNA ignores
     bit<8>  ring_len;
     bit<1>  lsq;
+    bit<2>  aux_plus;       // set_config: aux = max(x[aux_plus] - x[aux_minus], 0)
+    bit<2>  aux_minus;
     bit<16> x;              // the monitored signal (also the class table's level)
+    bit<16> aux;            // compensate table key
+    bit<32> bias;           // compensate result: the key bias minus the offset (monitor.p4)
     bit<32> x32;            // x, zero-extended
     bit<1>  q;              // precondition (l1..l4) holds
     bit<1>  q_cmd;          // precondition_cmd (p1, v1, v2) holds
@@ -56,7 +60,7 @@ struct monitor_md_t {
     bit<8>  ptr;            // ring pointer before this message
     bit<32> old;            // ring cell overwritten by x
     bit<32> d;              // x - old; later 2 * s1
-    bit<32> e;              // d + B (lsq; B = 2^(31 - k), see monitor.p4)
+    bit<32> e;              // d + bias (lsq; bias = B - offset / (W - 1), see monitor.p4)
     bit<32> t0;             // shift-and-add terms and partial sums (const_mul.p4)
     bit<32> t1;
     bit<32> t2;
@@ -66,7 +70,7 @@ struct monitor_md_t {
     bit<32> t;              // s0 - R * old
     bit<32> s1;             // s1 after the update
     bit<32> s0n;            // s0 after the update, + B
-    bit<32> slope_key;      // slope XOR 2^31
+    bit<32> slope_key;      // (slope - offset) XOR 2^31
 }
 
 struct ig_metadata_t {

@@ -6,7 +6,8 @@
  * every control-plane object of a slot is declared here, so that it is
  * CivicIngress.monK.<object>, with the same names, keys and action
  * parameters as on v1model (config / set_config, precondition / qualify /
- * disqualify, classify / set_class, registers ring ptr run s0 s1).
+ * disqualify, compensate / set_offset, classify / set_class, registers
+ * ring ptr run s0 s1), except set_offset's parameter (below).
  *
  * Tofino rules shape this file:
  *  - W, R and the estimator are compile-time constants (constructor
@@ -45,6 +46,17 @@
  *     dividing W - 1 (config.p4), (W - 1) * B = 2^31 (mod 2^32), so
  *     s0n = s0 + (d + B) = s0' + B carries the bias through the product
  *     and slope_key = (W - 1) * s0n - 2 * s1' directly, for every W.
+ * Compensation (pipeline.md 3a) costs no stage of its own: the offset rides
+ * in the same bias. The compensate action's parameter is the bias itself,
+ * set_offset(bias), computed by the control plane from the offset:
+ *   lsq:      bias = B - offset / (W - 1)   (offset is a multiple of W - 1)
+ *             e = d + bias, so slope_key = (W - 1) * (s0' + B) - 2 * s1'
+ *             - offset = (slope - offset) XOR 2^31
+ *   endpoint: bias = 2^31 - offset,  slope_key = d + bias
+ * and a miss keeps the default set_offset(c_s0_bias): offset 0. The chain
+ * config -> aux (one table on aux_plus, aux_minus) -> compensate ends in
+ * stage 2, before the stage-4 step that adds bias.
+ *
  * set_class writes the class straight into the slot's field of the bridge
  * header (cls_out); a slot that is not evaluated keeps the 0 the ingress
  * parser put there.
@@ -72,20 +84,40 @@ control Monitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_prefix,
 
     // ------------------------------------------------------------ config
     action set_config(bit<1> enabled, bit<2> signal, bit<8> window,
-                      bit<8> ring_len, bit<1> lsq) {
+                      bit<8> ring_len, bit<1> lsq, bit<2> aux_plus,
+                      bit<2> aux_minus) {
         m.enabled = enabled;
         m.signal = signal;
         m.window = window;
         m.ring_len = ring_len;
         m.lsq = lsq;
+        m.aux_plus = aux_plus;
+        m.aux_minus = aux_minus;
     }
 
     table config {
         actions = {
             set_config;
         }
-        default_action = set_config(0, 0, 0, 0, 0);   // disabled
+        default_action = set_config(0, 0, 0, 0, 0, 0, 0);   // disabled
         size = 1;
+    }
+
+    // ------------------------------------------------------------ compensation
+    // bias = the key bias minus the offset (see the header of this file)
+    action set_offset(bit<32> bias) {
+        m.bias = bias;
+    }
+
+    table compensate {
+        key = {
+            m.aux: range @name("aux");
+        }
+        actions = {
+            set_offset;
+        }
+        default_action = set_offset(c_s0_bias);     // offset 0
+        size = TNA_COMPENSATE_TABLE_SIZE;
     }
 
     // ------------------------------------------------------------ precondition
@@ -230,6 +262,60 @@ control Monitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_prefix,
     // x = l1..l4 by signal (SIGNAL_L1..L4), zero-extended
     CIVIC_SELECT4(select_x, m.signal,
                   m.x = msg.l1;, m.x = msg.l2;, m.x = msg.l3;, m.x = msg.l4;)
+    // aux = max(x[aux_plus] - x[aux_minus], 0) in one saturating subtract:
+    // one table on (aux_plus, aux_minus) whose 12 const entries each
+    // subtract one pair of levels (equal codes miss: aux = 0), a stage
+    // shorter than selecting both levels first
+    @hidden action aux_zero() { m.aux = 0; }
+    @hidden action aux_l1_l2() { m.aux = msg.l1 |-| msg.l2; }
+    @hidden action aux_l1_l3() { m.aux = msg.l1 |-| msg.l3; }
+    @hidden action aux_l1_l4() { m.aux = msg.l1 |-| msg.l4; }
+    @hidden action aux_l2_l1() { m.aux = msg.l2 |-| msg.l1; }
+    @hidden action aux_l2_l3() { m.aux = msg.l2 |-| msg.l3; }
+    @hidden action aux_l2_l4() { m.aux = msg.l2 |-| msg.l4; }
+    @hidden action aux_l3_l1() { m.aux = msg.l3 |-| msg.l1; }
+    @hidden action aux_l3_l2() { m.aux = msg.l3 |-| msg.l2; }
+    @hidden action aux_l3_l4() { m.aux = msg.l3 |-| msg.l4; }
+    @hidden action aux_l4_l1() { m.aux = msg.l4 |-| msg.l1; }
+    @hidden action aux_l4_l2() { m.aux = msg.l4 |-| msg.l2; }
+    @hidden action aux_l4_l3() { m.aux = msg.l4 |-| msg.l3; }
+    @hidden table aux_diff {
+        key = {
+            m.aux_plus: exact;
+            m.aux_minus: exact;
+        }
+        actions = {
+            aux_zero;
+            aux_l1_l2;
+            aux_l1_l3;
+            aux_l1_l4;
+            aux_l2_l1;
+            aux_l2_l3;
+            aux_l2_l4;
+            aux_l3_l1;
+            aux_l3_l2;
+            aux_l3_l4;
+            aux_l4_l1;
+            aux_l4_l2;
+            aux_l4_l3;
+        }
+        const entries = {
+            (0, 1): aux_l1_l2();
+            (0, 2): aux_l1_l3();
+            (0, 3): aux_l1_l4();
+            (1, 0): aux_l2_l1();
+            (1, 2): aux_l2_l3();
+            (1, 3): aux_l2_l4();
+            (2, 0): aux_l3_l1();
+            (2, 1): aux_l3_l2();
+            (2, 3): aux_l3_l4();
+            (3, 0): aux_l4_l1();
+            (3, 1): aux_l4_l2();
+            (3, 2): aux_l4_l3();
+        }
+        const default_action = aux_zero();
+        size = 16;
+    }
     // x zero-extended into a 32-bit container (in the stage of the ring
     // access, which takes the 16-bit x directly)
     CIVIC_STEP(widen_x, m.x32 = widen.get({m.x});)
@@ -237,9 +323,10 @@ control Monitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_prefix,
     CIVIC_STEP(diff, m.d = m.x32 - m.old;)
     // R * old
     CIVIC_CONST_MUL(r, m.old, m.acc, r_a0, r_a1, r_a2, r_a3, r_used, r_negs)
-    // endpoint: slope_key = (x - old) XOR 2^31; lsq: e = d + B
-    CIVIC_STEP(key_endpoint, m.slope_key = m.d ^ SLOPE_BIAS;)
-    CIVIC_STEP(diff_b, m.e = m.d + c_s0_bias;)
+    // endpoint: slope_key = (x - old - offset) XOR 2^31 = d + bias;
+    // lsq: e = d + bias (bias = B - offset / (W - 1))
+    CIVIC_STEP(key_endpoint, m.slope_key = m.d + m.bias;)
+    CIVIC_STEP(diff_b, m.e = m.d + m.bias;)
     // t = s0 - R * old, the increment of s1
     CIVIC_STEP(s1_inc, m.t = m.s0 - m.acc;)
     // s0n = s0' + B
@@ -259,6 +346,8 @@ control Monitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_prefix,
         // x is computed for every frame; it is used only when `on`
         select_x.apply();           // SIGNAL_L1..L4 = 0..3
         widen_x.apply();
+        aux_diff.apply();
+        compensate.apply();
 
 #define ON (msg.isValid() && monitored == 1 && in_prefix == 1 && m.enabled == 1)
         if (ON) {

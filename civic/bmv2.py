@@ -76,6 +76,7 @@ class BMv2Output:
     frames: list                     # per input frame: bytes seen on the output port, or None
     capture: Capture | None = None   # the forwarded frames as a capture (input timestamps)
     missing: list = field(default_factory=list)   # indices of input frames not forwarded
+    digests: list = field(default_factory=list)   # verdict_change_t digests ({member: value}), in order
 
     @property
     def complete(self) -> bool:
@@ -346,7 +347,20 @@ class BMv2Switch:
         """Install the entries; with reset, re-push the pipeline first (zeroes every register)."""
         if reset:
             self.conn.set_pipeline(self.pipeline.p4info, self.pipeline.device_config, self.pipeline.cookie)
-        return p4rt.converge(self.conn, load_entries(entries_path), self.schema, self.pipeline)
+        result = p4rt.converge(self.conn, load_entries(entries_path), self.schema, self.pipeline)
+        if p4rt.DIGEST_VERDICT_CHANGE in self.schema.digests:
+            p4rt.enable_digest(self.conn, self.schema)
+        return result
+
+    def collect_digests(self, quiet: float = 0.5) -> list[dict]:
+        """Every verdict-change digest the switch has sent, in order, until `quiet` s pass without
+        one (the switch flushes a list after 1 ms); each list is acknowledged."""
+        out = []
+        while (msg := self.conn.next_stream_message(quiet)) is not None:
+            if msg.HasField("digest"):
+                out.extend(p4rt.digest_members(msg.digest, self.schema))
+                self.conn.ack_digest(msg.digest)
+        return out
 
     def send_frames(self, frames: Sequence[bytes], frame_timeout: float = 1.0, window: int = WINDOW,
                     progress=None) -> list:
@@ -508,5 +522,6 @@ def replay_bmv2(captures: Sequence[Capture], entries_path: str | Path, pipeline_
             before += len(cap)
             missing = [i for i, f in enumerate(frames) if f is None]
             results.append(BMv2Output(frames=frames, missing=missing,
-                                      capture=output_capture(cap, frames, entries.udp_port, entries.plant_prefix)))
+                                      capture=output_capture(cap, frames, entries.udp_port, entries.plant_prefix),
+                                      digests=sw.collect_digests()))
     return results

@@ -58,7 +58,9 @@ ACTION_SET_EGRESS = f"{CONTROL}.set_egress"
 ACTION_SET_MONITORED = f"{CONTROL}.set_monitored"
 ACTION_SET_PLANT = f"{CONTROL}.set_plant"
 REGISTER_LAST_SEQ = f"{CONTROL}.last_seq"
-MONITOR_REGISTERS = ("ring", "ptr", "run", "s0", "s1")
+MONITOR_REGISTERS = ("ring", "ptr", "run", "s0", "s1", "last_class")
+COUNTER_VERDICTS = "verdicts"       # monK.verdicts: packets per cell slot * 4 + class
+DIGEST_VERDICT_CHANGE = "verdict_change_t"   # one per message on which a verdict changes
 SIGNAL_CODES = {"l1": 0, "l2": 1, "l3": 2, "l4": 3}
 SLOPE_BIAS = 0x80000000
 PRIORITY_BASE = 0xFFFF       # entry i of a range table gets priority PRIORITY_BASE - i
@@ -137,6 +139,9 @@ class P4Schema:
                                                   {r.id for r in t.action_refs})
                        for t in p4info.tables}
         self.registers = {r.preamble.name: r for r in p4info.registers}
+        self.counters = {c.preamble.name: c for c in p4info.counters}
+        self.digests = {d.preamble.name: d for d in p4info.digests}
+        self.structs = {name: [m.name for m in s.members] for name, s in p4info.type_info.structs.items()}
         self.table_by_id = {t.id: t for t in self.tables.values()}
         self.action_by_id = {a.id: a for a in self.actions.values()}
         self.register_by_id = {r.preamble.id: r for r in p4info.registers}
@@ -164,6 +169,16 @@ class P4Schema:
         if name not in self.registers:
             raise CivicError(f"P4Info has no register '{name}'")
         return self.registers[name]
+
+    def counter(self, name: str) -> p4info_pb2.Counter:
+        if name not in self.counters:
+            raise CivicError(f"P4Info has no counter '{name}' (is the pipeline a CIVIC build with verdict counters?)")
+        return self.counters[name]
+
+    def digest(self, name: str) -> p4info_pb2.Digest:
+        if name not in self.digests:
+            raise CivicError(f"P4Info has no digest '{name}' (is the pipeline a CIVIC build with verdict digests?)")
+        return self.digests[name]
 
     def register_width(self, name: str) -> int:
         return int(self.register(name).type_spec.bitstring.bit.bitwidth)
@@ -678,6 +693,29 @@ class SwitchConnection:
             self.channel.close()
             self.channel = None
 
+    # -- stream (digests, arbitration updates)
+    def next_stream_message(self, timeout: float):
+        """The next StreamChannel message (digest lists, arbitration updates), None after `timeout`
+        s of silence. Arbitration updates also update `primary`. A closed stream is a CivicError."""
+        try:
+            msg = self._responses.get(timeout=timeout)
+        except queue.Empty:
+            return None
+        if isinstance(msg, grpc.RpcError):
+            raise self._rpc_error("stream", msg)
+        if msg is None:
+            self._responses.put(None)           # stays closed for every later call
+            raise CivicError(f"switch {self.address}: the P4Runtime stream closed")
+        if msg.HasField("arbitration"):
+            self.primary = msg.arbitration.status.code == code_pb2.OK
+        return msg
+
+    def ack_digest(self, digest_list) -> None:
+        req = p4runtime_pb2.StreamMessageRequest()
+        req.digest_ack.digest_id = digest_list.digest_id
+        req.digest_ack.list_id = digest_list.list_id
+        self._requests.put(req)
+
     def require_primary(self) -> None:
         if not self.arbitrate:
             raise CivicError("internal: a read-only session cannot write")
@@ -1085,3 +1123,46 @@ def configure(address: str, entries_path: str | Path, pipeline_dir: str | Path |
         result = converge(conn, entries, schema, pipeline)
         result.pipeline_pushed = result.pipeline_pushed or pushed
         return result
+
+
+# ---------------------------------------------------------------- verdict digests and counters
+def enable_digest(conn: SwitchConnection, schema: P4Schema, max_timeout_ns: int = 1_000_000,
+                  max_list_size: int = 64, ack_timeout_ns: int = 1_000_000_000) -> int:
+    """Ask the switch to send the verdict-change digest (INSERT, or MODIFY if configured); its id."""
+    digest_id = schema.digest(DIGEST_VERDICT_CHANGE).preamble.id
+    entry = p4runtime_pb2.DigestEntry(digest_id=digest_id)
+    entry.config.max_timeout_ns = max_timeout_ns
+    entry.config.max_list_size = max_list_size
+    entry.config.ack_timeout_ns = ack_timeout_ns
+    for kind in (INSERT, MODIFY):
+        u = p4runtime_pb2.Update(type=kind)
+        u.entity.digest_entry.CopyFrom(entry)
+        try:
+            conn.write([u])
+            return digest_id
+        except WriteRejected as exc:
+            if kind == MODIFY:
+                raise CivicError(f"switch {conn.address}: cannot enable the verdict digest: {exc.summary}") from None
+    return digest_id
+
+
+def digest_members(digest_list, schema: P4Schema) -> list[dict[str, int]]:
+    """The verdict_change_t structs of one DigestList, as {member: value}."""
+    names = schema.structs.get(DIGEST_VERDICT_CHANGE)
+    if not names:
+        raise CivicError(f"P4Info has no type for digest '{DIGEST_VERDICT_CHANGE}'")
+    out = []
+    for data in digest_list.data:
+        values = [decode_value(m.bitstring) for m in data.struct.members]
+        if len(values) != len(names):
+            raise CivicError(f"digest with {len(values)} members, P4Info says {len(names)}")
+        out.append(dict(zip(names, values)))
+    return out
+
+
+def read_counter(conn: SwitchConnection, schema: P4Schema, name: str) -> dict[int, int]:
+    """Packet count of every cell of a counter."""
+    ent = p4runtime_pb2.Entity()
+    ent.counter_entry.counter_id = schema.counter(name).preamble.id
+    return {int(e.counter_entry.index.index): int(e.counter_entry.data.packet_count)
+            for e in conn.read([ent])}

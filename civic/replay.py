@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from civic.entries import Entries
+from civic.events import digest_changes, event, place
 from civic.pipeline import SwitchModel
 from civic.report import progress_bar
 from civic.wire import Capture, read_pcap
@@ -18,9 +19,13 @@ def with_verdict(capture: Capture) -> int:
 
 
 def replay_files(inputs: list[Path], outputs: list[Path], entries: Entries, entries_path: str,
-                 target: str = "model", pipeline: str = "build/v1model") -> dict:
-    """Each input through a freshly reset switch; output frames in order, verdicts written."""
+                 target: str = "model", pipeline: str = "build/v1model", events: list | None = None) -> dict:
+    """Each input through a freshly reset switch; output frames in order, verdicts written.
+
+    events: a list that receives the verdict-change events (civic.events), inputs in order; on
+    BMv2 they come from the switch's digests."""
     stats = {"frames": 0, "plant": 0, "evaluated": 0}
+    names = [m.name for m in entries.monitors]
     captures = []
     with progress_bar() as progress:
         task = progress.add_task("replaying", total=len(inputs))
@@ -29,6 +34,9 @@ def replay_files(inputs: list[Path], outputs: list[Path], entries: Entries, entr
             stats["frames"] += len(cap)
             stats["plant"] += int(cap.messages["plant"].sum())
             if target == "model":  # a freshly reset software switch per input
+                if events is not None:
+                    msgs = cap.messages
+                    events += [event(c, msgs["t"][c.index], names) for c in SwitchModel(entries).verdict_changes(msgs)]
                 cap.set_verdicts(SwitchModel(entries).run(cap.messages))
                 cap.write(dst)
                 stats["evaluated"] += with_verdict(cap)
@@ -36,11 +44,12 @@ def replay_files(inputs: list[Path], outputs: list[Path], entries: Entries, entr
                 captures.append((cap, dst))
             progress.advance(task)
     if target == "bmv2":
-        stats["evaluated"], stats["missing"] = replay_on_bmv2(captures, entries_path, pipeline)
+        stats["evaluated"], stats["missing"] = replay_on_bmv2(captures, entries_path, pipeline, events, names)
     return stats
 
 
-def replay_on_bmv2(captures: list[tuple[Capture, Path]], entries_path: str, pipeline: str) -> tuple[int, int]:
+def replay_on_bmv2(captures: list[tuple[Capture, Path]], entries_path: str, pipeline: str,
+                   events: list | None = None, names: list[str] = ()) -> tuple[int, int]:
     """All captures through one BMv2 switch (registers reset between captures); write the outputs."""
     from civic.bmv2 import build_pipeline, replay_bmv2
 
@@ -51,7 +60,11 @@ def replay_on_bmv2(captures: list[tuple[Capture, Path]], entries_path: str, pipe
         results = replay_bmv2([c for c, _ in captures], entries_path, pipeline,
                               progress=lambda n: progress.update(task, completed=n))
     evaluated = missing = 0
-    for (_, dst), res in zip(captures, results):
+    for (cap, dst), res in zip(captures, results):
+        if events is not None:
+            msgs = cap.messages
+            changes = place([digest_changes(d, len(names)) for d in res.digests], msgs)
+            events += [event(c, msgs["t"][c.index], names) for c in changes]
         res.capture.write(dst)
         evaluated += with_verdict(res.capture)
         missing += len(res.missing)

@@ -14,6 +14,8 @@ def register(sub) -> None:
     p.add_argument("--target", choices=("model", "bmv2"), default="model")
     p.add_argument("--pipeline", metavar="DIR", default="build/v1model",
                    help="bmv2: folder with civic.json and civic.p4info.txtpb")
+    p.add_argument("--events", metavar="EVENTS.jsonl",
+                   help="write every verdict change as a JSON line (BMv2: from the switch's digests)")
     p.set_defaults(func=run)
 
 
@@ -36,7 +38,13 @@ def run(args) -> int:
 
     entries = load_entries(args.entries)
     outs = output_paths(args.inputs, args.output)
-    stats = replay_files([Path(i) for i in args.inputs], outs, entries, args.entries, args.target, args.pipeline)
+    events = [] if args.events else None
+    stats = replay_files([Path(i) for i in args.inputs], outs, entries, args.entries, args.target, args.pipeline,
+                         events)
+    if events is not None:
+        from civic.events import write_events
+        write_events(args.events, events)
+        print(f"{len(events)} verdict changes -> {args.events}")
     print(f"replayed {stats['frames']} frames ({stats['plant']} plant messages, "
           f"{stats['evaluated']} with a verdict) from {len(outs)} file(s) -> {args.output}")
     if stats.get("missing"):

@@ -1,8 +1,9 @@
-"""The whole switch: plant lookup -> data collection -> slope -> classification -> verdict.
+"""The whole switch: plant lookup -> data collection -> slope -> classification -> notify -> verdict.
 
 `SwitchModel.step` is the plain per-message model (state kept between calls,
-exactly the P4 registers); `SwitchModel.run` is the vectorized model of a
-freshly reset switch. Both return the 16-bit verdict of every message.
+exactly the P4 registers and counters; verdict changes collected in
+`.changes`, counts in `.counts`); `SwitchModel.run` / `.verdict_changes` /
+`.verdict_counts` are the vectorized model of a freshly reset switch.
 """
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from civic.entries import Entries, MonitorEntries
-from civic.pipeline import classification, data_collection, plant_lookup, slope
+from civic.pipeline import classification, data_collection, notify, plant_lookup, slope
 from civic.pipeline.verdict import verdict_bits
 from civic.wire import SIGNALS
 
@@ -50,9 +51,13 @@ class SwitchModel:
         """Zero every register, as a freshly started switch."""
         self.last_seq = np.zeros(self.plants, dtype=np.int64)
         self.rings = [data_collection.RingState(self.plants, m.ring_len) for m in self.entries.monitors]
+        n = len(self.entries.monitors)
+        self.last_class = np.zeros((n, self.plants), dtype=np.int64)
+        self.counts = np.zeros((n, self.plants, notify.CLASSES), dtype=np.int64)
+        self.changes: list[notify.Change] = []
 
     # -- plain per-message model: one call per plant message, mirrors the P4 control flow
-    def step(self, src: int, seq: int, fields: dict) -> int:
+    def step(self, src: int, seq: int, fields: dict, index: int = -1) -> int:
         slot = int(plant_lookup.plant_slot(src))
         gap = plant_lookup.seq_gap(seq, int(self.last_seq[slot]))
         self.last_seq[slot] = seq
@@ -72,6 +77,12 @@ class SwitchModel:
             if ring.run[slot] >= mon.window:
                 code = int(classification.classify(np.array([resid]), np.array([x]), mon.classes,
                                                    mon.default_class)[0])
+            if code:                                  # notify: counters, last_class, changes
+                self.counts[m, slot, code] += 1
+                prev = int(self.last_class[m, slot])
+                if code != prev:
+                    self.changes.append(notify.Change(index, int(src), m, prev, code, int(seq), s, int(x)))
+                    self.last_class[m, slot] = code
             verdict |= code << (2 * m)
         return verdict
 
@@ -80,7 +91,7 @@ class SwitchModel:
         out = messages["verdict"].copy()
         for i in np.flatnonzero(messages["plant"]):
             row = messages[i]
-            out[i] = self.step(int(row["src"]), int(row["seq"]), {k: int(row[k]) for k in SIGNALS})
+            out[i] = self.step(int(row["src"]), int(row["seq"]), {k: int(row[k]) for k in SIGNALS}, int(i))
         return out
 
     # -- vectorized model of a freshly reset switch
@@ -119,6 +130,26 @@ class SwitchModel:
             traces.append(MonitorTrace(monitor=mon, run=run[unsort], slope=s[unsort], level=x[unsort],
                                        aux=a[unsort], offset=off[unsort], code=code[unsort]))
         return idx, traces
+
+    def verdict_changes(self, messages: np.ndarray) -> list[notify.Change]:
+        """Every verdict change (the switch's digests), in message order, monitors in order."""
+        idx, traces = self.traces(messages)
+        slots = plant_lookup.plant_slot(messages["src"][idx])
+        out = []
+        for m, tr in enumerate(traces):
+            changed, prev = notify.changes(slots, tr.code)
+            for j in np.flatnonzero(changed):
+                i = int(idx[j])
+                out.append(notify.Change(i, int(messages["src"][i]), m, int(prev[j]), int(tr.code[j]),
+                                         int(messages["seq"][i]), int(tr.slope[j]), int(tr.level[j])))
+        return sorted(out, key=lambda c: (c.index, c.monitor))
+
+    def verdict_counts(self, messages: np.ndarray) -> np.ndarray:
+        """The verdicts counters (monitors, plants, 4) after the messages."""
+        idx, traces = self.traces(messages)
+        slots = plant_lookup.plant_slot(messages["src"][idx])
+        return np.array([notify.verdict_counts(slots, tr.code, self.plants) for tr in traces]).reshape(
+            len(traces), self.plants, notify.CLASSES)
 
     def run(self, messages: np.ndarray) -> np.ndarray:
         """Verdict of every message (vectorized); non-plant messages keep their verdict field."""

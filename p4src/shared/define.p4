@@ -73,4 +73,11 @@
 #define CLASSIFY_TABLE_SIZE 1024
 #define COMPENSATE_TABLE_SIZE 256
 
+/* ---------------------------------------------------------------- verdict changes */
+// pipeline.md section 7: per monitor, a packet counter per (slot, class),
+// cell slot * 4 + class (class 1..3; cell slot * 4 is never counted).
+#define VERDICT_COUNTER_CELLS 1024   // MAX_PLANTS * 4
+// Digest receiver id (v1model digest(receiver, data)).
+#define VERDICT_DIGEST_RECEIVER 1
+
 #endif  /* _CIVIC_DEFINE_P4_ */

@@ -59,4 +59,25 @@ header plant_msg_t {
     bit<16> verdict;      // written by the switch: 2 bits per monitor
 }
 
+// One digest per plant message on which any monitor's verdict changes
+// (pipeline.md section 7): bit k of `changed` says monitor k changed; its
+// previous and new class are bits 2k+1..2k of `prev` and `cls`, its raw
+// slope and level are slopeK and levelK. BMv2 sends at most one digest per
+// packet, so all monitors share one.
+struct verdict_change_t {
+    bit<32> plant;          // ipv4.src_addr
+    bit<32> seq;
+    bit<8>  changed;
+    bit<8>  prev;
+    bit<8>  cls;
+    bit<32> slope0;
+    bit<16> level0;
+    bit<32> slope1;
+    bit<16> level1;
+    bit<32> slope2;
+    bit<16> level2;
+    bit<32> slope3;
+    bit<16> level3;
+}
+
 #endif  /* _CIVIC_HEADERS_P4_ */

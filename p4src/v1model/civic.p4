@@ -14,7 +14,8 @@
  *   2. plant_lookup monitored UDP port, plant prefix -> slot; seq gap
  *   3. per monitor slot k = 0..3 (Monitor() monK, if enabled):
  *        config, signal, precondition, data collection, slope, classification
- *   4. verdict      verdict word + incremental UDP checksum
+ *   4. notify       one digest per message on which a verdict changes
+ *   5. verdict      verdict word + incremental UDP checksum
  * Steps 2-4 run only for frames with a complete plant message; 3-4 only
  * for plant messages (monitored port and plant prefix). Other frames leave
  * byte-identical and touch no register.
@@ -27,7 +28,9 @@
  *   CivicIngress.monK.{config, set_config, precondition, qualify,
  *                      disqualify, compensate, set_offset, classify,
  *                      set_class,
- *                      ring, ptr, run, s0, s1}            K = 0..3
+ *                      ring, ptr, run, s0, s1, last_class,
+ *                      verdicts (counter)}                  K = 0..3
+ *   digest verdict_change_t
  */
 #include <core.p4>
 // The v1model API this program is written against (register<T> with a
@@ -45,6 +48,7 @@
 #include "include/control/signal_select.p4"
 #include "include/control/slope.p4"
 #include "include/control/monitor.p4"
+#include "include/control/notify.p4"
 #include "include/control/verdict.p4"
 
 control CivicVerifyChecksum(inout headers_t hdr, inout local_metadata_t meta) {
@@ -68,6 +72,7 @@ control CivicIngress(inout headers_t hdr,
     Monitor() mon2;
     Monitor() mon3;
 
+    Notify() notify;
     Verdict() verdict;
 
     apply {
@@ -82,6 +87,7 @@ control CivicIngress(inout headers_t hdr,
             mon1.apply(hdr.plant, meta.slot, meta.gap, meta.mon1);
             mon2.apply(hdr.plant, meta.slot, meta.gap, meta.mon2);
             mon3.apply(hdr.plant, meta.slot, meta.gap, meta.mon3);
+            notify.apply(hdr, meta);
             verdict.apply(hdr, meta);
         }
     }

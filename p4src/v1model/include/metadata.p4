@@ -42,6 +42,8 @@ struct monitor_md_t {
     bit<32> slope_key;      // (slope - offset) XOR SLOPE_BIAS (class table key)
     bit<16> level;          // = x (class table key)
     bit<2>  cls;            // verdict bits of this monitor
+    bit<2>  prev;           // last_class[slot] before this message (when cls != 0)
+    bit<1>  changed;        // cls != 0 and cls != prev: a verdict change
 }
 
 struct local_metadata_t {

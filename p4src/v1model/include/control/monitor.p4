@@ -23,7 +23,9 @@
  *                        -> set_class(cls); miss -> default set_class(3),
  *                        the control plane sets the monitor's default_class
  *   registers ring bit<16> x 32768, ptr bit<8>, run bit<8>, s0 bit<32>,
- *             s1 bit<32> (x 256 each)
+ *             s1 bit<32>, last_class bit<2> (x 256 each)
+ *   counter   verdicts (packets) x 1024: cell slot * 4 + class
+ *             (pipeline.md section 7)
  *
  * Objects without control-plane state (signal selection, slope) are
  * sub-controls in their own files; an instance of a control that declares
@@ -38,6 +40,8 @@
  *   aux = max(x[aux_plus] - x[aux_minus], 0); offset = compensate(aux)
  *   slope, slope_key = (slope - offset) ^ 2^31     (slope.p4)
  *   cls = run >= W ? classify(slope_key, x) : 0
+ *   cls != 0: verdicts[slot * 4 + cls]++; prev = last_class; changed =
+ *             (cls != prev); last_class = cls       (section 7)
  * The ring, pointer and sums are updated for every plant message,
  * qualifying or not; all bit<32> arithmetic is modular, as in the model.
  *
@@ -59,6 +63,8 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
     register<bit<8>>(MAX_PLANTS) run;
     register<bit<32>>(MAX_PLANTS) s0;
     register<bit<32>>(MAX_PLANTS) s1;
+    register<bit<2>>(MAX_PLANTS) last_class;
+    counter(VERDICT_COUNTER_CELLS, CounterType.packets) verdicts;
 
     SignalSelect() signal_select;
     Slope() slope;
@@ -147,6 +153,8 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
     apply {
         m.enabled = 0;
         m.cls = CLASS_NOT_EVALUATED;
+        m.prev = CLASS_NOT_EVALUATED;
+        m.changed = 0;
         config.apply();
         if (m.enabled == 1) {
             signal_select.apply(msg, m);
@@ -190,6 +198,17 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
 
             if (m.run >= m.window) {
                 classify.apply();
+            }
+
+            // verdict counts and changes (section 7): messages without a
+            // verdict touch neither
+            if (m.cls != CLASS_NOT_EVALUATED) {
+                verdicts.count((slot << 2) | (bit<32>)m.cls);
+                last_class.read(m.prev, slot);
+                if (m.cls != m.prev) {
+                    m.changed = 1;
+                    last_class.write(slot, m.cls);
+                }
             }
         }
     }

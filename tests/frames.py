@@ -98,3 +98,25 @@ def sequence_edges(src="10.0.0.9") -> list[bytes]:
             + list(range(33, 60)) + [59] + list(range(60, 90)))                # a gap, a repeated seq
     return [bytes(plant(src=src, seq=s, l3=7000 - 25 * i, v2=1000, l2=(i * i * 7) % 65536, l1=2000, l4=20000))
             for i, s in enumerate(seqs)]
+
+
+def changing_fleet(path, plants: int = 8, gap_s: float = 20.0):
+    """`plants` gateways 10.0.0.1.. in one capture, each replaying three bundled drain recordings of
+    different classes one after the other (the class rotates per plant), so every plant's verdict
+    changes twice; messages interleaved in time. Returns the path."""
+    from data import TRAINING
+
+    runs = ["drain_v075_normal_r1", "drain_v075_warning_r2", "drain_v075_error_r3"]
+    frames, times = [], []
+    for k in range(plants):
+        order = runs[k % 3:] + runs[:k % 3]
+        seq = 1000 * k
+        for j, name in enumerate(order):
+            msgs = read_pcap(TRAINING / f"{name}.pcap").messages
+            fields = {c: msgs[c] for c in ("l1", "l2", "l3", "l4", "p1", "v1", "v2")}
+            frames.extend(build_frames(fields, src_ip=f"10.0.0.{k + 1}", seq0=seq))
+            times.extend(msgs["t"] - msgs["t"][0] + j * gap_s + k * 0.1 / plants)
+            seq += len(msgs) + 5                          # a sequence gap between the runs
+    order = np.argsort(np.asarray(times), kind="stable")
+    write_pcap(path, 1_767_225_600 + np.asarray(times)[order], [bytes(frames[i]) for i in order])
+    return path

@@ -5,6 +5,8 @@ import argparse
 
 from civic.errors import CivicError
 
+CONFIGURE_ELECTION_ID = 10   # civic watch joins with 1
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -18,7 +20,9 @@ def register(subparsers) -> None:
                    help="install the pipeline from DIR (civic.json + civic.p4info.txtpb) unless the "
                         "switch already runs it")
     p.add_argument("--device-id", type=int, default=0, metavar="N", help="P4Runtime device id (default 0)")
-    p.add_argument("--election-id", type=int, default=1, metavar="N", help="election id (default 1)")
+    p.add_argument("--election-id", type=int, default=CONFIGURE_ELECTION_ID, metavar="N",
+                   help=f"election id (default {CONFIGURE_ELECTION_ID}: above a running `civic watch`, which "
+                        "stays connected and is primary again when configure leaves)")
     p.add_argument("--timeout", type=float, default=5.0, metavar="S", help="connect timeout in seconds")
     p.add_argument("--padded-bytes", action="store_true",
                    help="send full-width byte strings (P4Runtime servers built before PI accepted the "

@@ -16,6 +16,7 @@ def register(sub) -> None:
                    help="bmv2: folder with civic.json and civic.p4info.txtpb")
     p.add_argument("--events", metavar="EVENTS.jsonl",
                    help="write every verdict change as a JSON line (BMv2: from the switch's digests)")
+    p.add_argument("--timeline", metavar="PNG", help="the plants' class timeline from the verdict changes")
     p.set_defaults(func=run)
 
 
@@ -38,13 +39,17 @@ def run(args) -> int:
 
     entries = load_entries(args.entries)
     outs = output_paths(args.inputs, args.output)
-    events = [] if args.events else None
+    events = [] if args.events or args.timeline else None
     stats = replay_files([Path(i) for i in args.inputs], outs, entries, args.entries, args.target, args.pipeline,
                          events)
-    if events is not None:
+    if args.events:
         from civic.events import write_events
         write_events(args.events, events)
         print(f"{len(events)} verdict changes -> {args.events}")
+    if args.timeline:
+        from civic.timeline import plot_timeline
+        plot_timeline(events, args.timeline)
+        print(f"class timeline -> {args.timeline}")
     print(f"replayed {stats['frames']} frames ({stats['plant']} plant messages, "
           f"{stats['evaluated']} with a verdict) from {len(outs)} file(s) -> {args.output}")
     if stats.get("missing"):

@@ -1,0 +1,137 @@
+"""`civic watch` on a real simple_switch_grpc (BMv2): digests become the model's events, the switch's
+counters the output capture's verdict counts, and a Prometheus scrape shows the same numbers."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from civic.wire import CLASS_CODES, OFF_VERDICT, int_to_ip, monitor_verdict, read_pcap
+from frames import changing_fleet
+
+pytestmark = [
+    pytest.mark.bmv2,
+    pytest.mark.skipif(not (shutil.which("p4c-bm2-ss") and shutil.which("simple_switch_grpc")),
+                       reason="p4c-bm2-ss and simple_switch_grpc not both on PATH"),
+    pytest.mark.skipif(not (hasattr(os, "geteuid") and os.geteuid() == 0),
+                       reason="BMv2 needs root (network namespace)"),
+]
+
+ROOT = Path(__file__).resolve().parents[2]
+ENV = {**os.environ, "COLUMNS": "200"}
+
+
+def civic(*argv) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "civic", *map(str, argv)], capture_output=True, text=True,
+                          cwd=ROOT, env=ENV)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def scrape(port: int) -> dict:
+    text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5).read().decode()
+    out = {}
+    for line in text.splitlines():
+        m = re.match(r"^(civic_\w+)(\{[^}]*\})? (\S+)$", line)
+        if m:
+            labels = tuple(sorted(re.findall(r'(\w+)="([^"]*)"', m.group(2) or "")))
+            out[(m.group(1), labels)] = float(m.group(3))
+    return out
+
+
+def without_t(events):
+    return [{k: v for k, v in e.items() if k != "t"} for e in events]
+
+
+@pytest.fixture
+def switch():
+    from civic.bmv2 import BMv2Switch
+    with BMv2Switch(None, controller=False) as sw:
+        yield sw
+
+
+def test_watch_reports_the_switchs_digests_counters_and_metrics(switch, v1model_build, trained_entries, tmp_path):
+    entries = tmp_path / "entries.json"
+    trained_entries.save(entries)
+    capture = changing_fleet(tmp_path / "fleet.pcap", plants=6)
+    res = civic("replay", capture, "-o", tmp_path / "model.pcap", "--entries", entries,
+                "--events", tmp_path / "model.jsonl")
+    assert res.returncode == 0, res.stderr
+    want = [json.loads(ln) for ln in (tmp_path / "model.jsonl").read_text().splitlines()]
+    assert len(want) == 18 and sum(e["from"] is not None for e in want) == 12   # every plant changes twice
+
+    res = civic("configure", "--switch", switch.address, "--entries", entries, "--pipeline", v1model_build)
+    assert res.returncode == 0, res.stderr
+    port = free_port()
+    events = tmp_path / "watch.jsonl"
+    watch = subprocess.Popen([sys.executable, "-m", "civic", "watch", "--switch", switch.address,
+                              "--entries", entries, "--events", events, "--metrics-port", str(port),
+                              "--duration", "120", "--plot", tmp_path / "timeline.png"],
+                             cwd=ROOT, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while True:                                   # ready when the metrics endpoint answers
+            try:
+                scrape(port)
+                break
+            except OSError:
+                assert watch.poll() is None, watch.communicate()
+                assert time.monotonic() < deadline, "civic watch did not start"
+                time.sleep(0.2)
+        cap = read_pcap(capture)
+        out = switch.send_frames([cap.frame(i) for i in range(len(cap))], frame_timeout=1.0)
+        assert all(f is not None for f in out)
+        deadline = time.monotonic() + 20
+        while len(events.read_text().splitlines() if events.exists() else []) < len(want):
+            assert time.monotonic() < deadline, "the watch did not receive every digest"
+            time.sleep(0.2)
+        time.sleep(2.5)                               # a counter poll after the last frame
+        metrics = scrape(port)
+    finally:
+        watch.send_signal(signal.SIGINT)              # Ctrl-C ends it cleanly
+        stdout, stderr = watch.communicate(timeout=20)
+    assert watch.returncode == 0, stderr
+    assert "Traceback" not in stderr and "stopped: 18 verdict changes from 6 plants" in stderr
+
+    got = [json.loads(ln) for ln in events.read_text().splitlines()]
+    assert without_t(got) == without_t(want)          # t: when the digest arrived, not capture time
+    assert (tmp_path / "timeline.png").stat().st_size > 10_000
+
+    # the switch's counters == the verdicts in what came out of the switch
+    verdicts = np.array([int.from_bytes(f[OFF_VERDICT:OFF_VERDICT + 2], "big") for f in out])
+    src = read_pcap(capture).messages["src"]
+    names = [m.name for m in trained_entries.monitors]
+    for k, name in enumerate(names):
+        code = monitor_verdict(verdicts, k)
+        for plant in np.unique(src):
+            for cls, c in CLASS_CODES.items():
+                n = int(np.sum((src == plant) & (code == c)))
+                key = ("civic_verdicts_total", (("class", cls), ("monitor", name), ("plant", int_to_ip(int(plant)))))
+                assert metrics.get(key, 0.0) == n, key
+    assert metrics[("civic_events_total", ())] == 18
+    assert metrics[("civic_last_digest_age_seconds", ())] >= 0
+    last = {(e["plant"], e["monitor"]): e["to"] for e in want}
+    for (plant, monitor), cls in last.items():
+        key = ("civic_class", (("monitor", monitor), ("plant", plant)))
+        assert metrics[key] == CLASS_CODES[cls]
+
+
+def test_watch_an_unreachable_switch_is_one_line(tmp_path):
+    res = civic("watch", "--switch", "127.0.0.1:1", "--timeout", "1", "--duration", "1")
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert "cannot reach switch 127.0.0.1:1" in res.stderr and "Traceback" not in res.stderr

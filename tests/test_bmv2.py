@@ -227,7 +227,7 @@ def civic_cli(*argv, check=True) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def bmv2_inputs(tmp_path_factory, trained_entries):
     """Entries and every capture the switch must get right: recordings, edge cases, two 64-plant fleets."""
-    from frames import edge_frames, junk_frames, plant, sequence_edges
+    from frames import changing_fleet, edge_frames, junk_frames, plant, sequence_edges
 
     from civic.wire import write_pcap
 
@@ -242,18 +242,24 @@ def bmv2_inputs(tmp_path_factory, trained_entries):
     write_pcap(d / "edges.pcap", np.arange(len(crafted)) * 0.01, crafted)
     civic_cli("simulate", "drain", "--plants", "64", "--seed", "100", "-o", d / "fleet_drain.pcap")
     civic_cli("simulate", "fill", "--plants", "64", "--seed", "200", "-o", d / "fleet_fill.pcap")
+    changing_fleet(d / "fleet_changing.pcap", plants=12)
     caps = sorted((ROOT / "traces" / "training").glob("*.pcap")) + [d / "edges.pcap", d / "fleet_drain.pcap",
-                                                                    d / "fleet_fill.pcap"]
+                                                                    d / "fleet_fill.pcap", d / "fleet_changing.pcap"]
     return d / "entries.json", caps
 
 
 @needs_bmv2
 def test_bmv2_output_is_byte_identical_to_model(tmp_path, bmv2_inputs, v1model_build):
-    """civic replay --target bmv2 and --target model write the same bytes, file for file."""
+    """civic replay --target bmv2 and --target model write the same bytes, file for file, and the
+    same verdict-change events (BMv2's from its digests)."""
     entries, caps = bmv2_inputs
-    civic_cli("replay", *caps, "-o", tmp_path / "model", "--entries", entries, "--target", "model")
+    civic_cli("replay", *caps, "-o", tmp_path / "model", "--entries", entries, "--target", "model",
+              "--events", tmp_path / "model.jsonl")
     res = civic_cli("replay", *caps, "-o", tmp_path / "bmv2", "--entries", entries, "--target", "bmv2",
-                    "--pipeline", v1model_build)
+                    "--pipeline", v1model_build, "--events", tmp_path / "bmv2.jsonl")
+    events = (tmp_path / "model.jsonl").read_text()
+    assert events == (tmp_path / "bmv2.jsonl").read_text()
+    assert events.count("\n") > 30 + 128 + 24 and '"from": "warning"' in events
     assert "did not come out" not in res.stdout
     from civic.wire import read_pcap
     for cap in caps:
@@ -264,7 +270,7 @@ def test_bmv2_output_is_byte_identical_to_model(tmp_path, bmv2_inputs, v1model_b
             pytest.fail(f"{cap.name}: BMv2 differs from the model first at frame {first} "
                         f"({len(a)} model frames, {len(b)} BMv2 frames)")
     # the crafted cases really exercise the switch: verdicts given, and junk left alone
-    inp, out = read_pcap(caps[-3]), read_pcap(tmp_path / "bmv2" / "edges.pcap")
+    inp, out = read_pcap(caps[-4]), read_pcap(tmp_path / "bmv2" / "edges.pcap")
     assert np.count_nonzero(out.messages["verdict"]) > 20
     changed = [i for i in range(len(inp)) if inp.frame(i) != out.frame(i)]
     assert all(out.messages["plant"][i] for i in changed)

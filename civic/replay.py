@@ -33,6 +33,8 @@ def replay_files(inputs: list[Path], outputs: list[Path], entries: Entries, entr
             cap = read_pcap(src, entries.udp_port, entries.plant_prefix)
             stats["frames"] += len(cap)
             stats["plant"] += int(cap.messages["plant"].sum())
+            if len(cap):
+                stats["t_end"] = max(stats.get("t_end", 0.0), float(cap.messages["t"].max()))
             if target == "model":  # a freshly reset software switch per input
                 if events is not None:
                     msgs = cap.messages

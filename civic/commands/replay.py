@@ -48,7 +48,7 @@ def run(args) -> int:
         print(f"{len(events)} verdict changes -> {args.events}")
     if args.timeline:
         from civic.timeline import plot_timeline
-        plot_timeline(events, args.timeline)
+        plot_timeline(events, args.timeline, end_t=stats.get("t_end"))
         print(f"class timeline -> {args.timeline}")
     print(f"replayed {stats['frames']} frames ({stats['plant']} plant messages, "
           f"{stats['evaluated']} with a verdict) from {len(outs)} file(s) -> {args.output}")

@@ -49,6 +49,7 @@
 #include "include/control/const_mul.p4"
 #include "include/control/monitor.p4"
 #include "include/control/verdict.p4"
+#include "include/control/notify.p4"
 
 // Every 32-bit arithmetic field of a monitor slot in one 32-bit container:
 // Tofino ALU operations take at most two PHV sources, and a field split
@@ -139,6 +140,10 @@ control CivicIngress(inout ig_headers_t hdr,
                    meta.mon0, hdr.bridge.cls0);
         mon1.apply(hdr.plant, meta.monitored, meta.in_prefix, meta.slot, meta.gap,
                    meta.mon1, hdr.bridge.cls1);
+        // a verdict changed on this message: the deparser sends the digest
+        if (meta.mon0.chg != 0 || meta.mon1.chg != 0) {
+            ig_dprsr_md.digest_type = DIGEST_VERDICT_CHANGE;
+        }
     }
 }
 
@@ -150,10 +155,12 @@ control CivicEgress(inout eg_headers_t hdr,
                     inout egress_intrinsic_metadata_for_output_port_t eg_oport_md) {
 
     Verdict() verdict;
+    Notify() notify;
 
     apply {
         if (meta.bridge.plant == 1 && hdr.plant.isValid()) {
             verdict.apply(hdr, meta.bridge.cls1, meta.bridge.cls0);
+            notify.apply(hdr, meta.bridge.cls1, meta.bridge.cls0);
         }
     }
 }

@@ -208,7 +208,9 @@ def test_tna_derived_names():
     # bf-p4c takes at most six 16-bit range keys per table: TNA splits the precondition in two
     # (l1..l4 and p1, v1, v2; p4src/README.md), the only names TNA adds
     split = {f"CivicIngress.mon{k}.{name}": kind for k in range(n)
-             for name, kind in (("precondition_cmd", "table"), ("qualify_cmd", "action"), ("disqualify_cmd", "action"))}
+             for name, kind in (("precondition_cmd", "table"), ("qualify_cmd", "action"), ("disqualify_cmd", "action"),
+                                # one classify action per class: each runs its own last_class RegisterAction
+                                ("set_normal", "action"), ("set_warning", "action"), ("set_error", "action"))}
     assert names == {k: v for k, v in v1.items() if not re.match(rf"CivicIngress\.mon([{n}-9])\.", k)} | split
 
 
@@ -416,15 +418,21 @@ def test_tna_checksum_arithmetic_matches_the_model():
 
 @pytest.mark.parametrize("window,lsq", [(20, True), (90, True), (21, True), (2, True), (128, True),
                                         (20, False), (2, False), (127, False)])
-def test_tna_slope_key_arithmetic_matches_the_model(window, lsq):
-    """monitor.p4 + slope.p4 (TNA) transcribed, against the software model's registers and slope."""
+@pytest.mark.parametrize("offset_steps", [0, 1234, -77])
+def test_tna_slope_key_arithmetic_matches_the_model(window, lsq, offset_steps):
+    """monitor.p4 + slope.p4 (TNA) transcribed, against the software model's registers and slope;
+    the compensation's offset carried in the bias set_offset(bias) gives (pipeline.md 3a)."""
     from civic.pipeline import slope as model_slope
 
     m32, bias = 0xFFFFFFFF, 0x80000000
     r = window if lsq else window - 1
     r_mul, w1_mul = csd_terms(r), csd_terms(window - 1)
     assert mul_constant(*r_mul) == r and mul_constant(*w1_mul) == window - 1
-    bias_in_product = window % 2 == 0
+    # config.p4: B = 2^(31 - k), 2^k the largest power of two dividing W - 1, so (W - 1) * B = 2^31
+    w1 = window - 1
+    big_b = 1 << (31 - ((w1 & -w1).bit_length() - 1)) if lsq else bias
+    offset = offset_steps * w1 if lsq else offset_steps          # lsq offsets are multiples of W - 1
+    bias_param = (big_b - offset_steps) & m32 if lsq else (bias - offset) & m32   # set_offset(bias)
 
     rng = random.Random(window)
     ring = data_collection.RingState(1, r)
@@ -438,20 +446,21 @@ def test_tna_slope_key_arithmetic_matches_the_model(window, lsq):
         old = ring_t[p]
         ring_t[p] = x
         assert old == old_model
-        d, d_b = (x - old) & m32, ((x | bias) - old) & m32
+        d = (x - old) & m32
         t = (s0 - const_mul(old, *r_mul)) & m32
         s0_before, s0 = s0, (s0 + d) & m32
         s1 = (s1 + t) & m32
         assert (s0, s1) == (int(ring.s0[0]), int(ring.s1[0]))
         if lsq:
-            s0n = (s0_before + (d_b if bias_in_product else d)) & m32
+            e = (d + bias_param) & m32                               # diff_b
+            s0n = (s0_before + e) & m32                              # s0_new_b
             prod = const_mul(s0n, *w1_mul)
-            key = (prod - (s1 << 1)) & m32 if bias_in_product else ((prod - (s1 << 1)) & m32) ^ bias
+            key = (prod - (s1 << 1)) & m32                           # s1_twice, key_lsq_b
             want = int(model_slope.lsq(ring.s0[0], ring.s1[0], window))
         else:
-            key = d_b
+            key = (d + bias_param) & m32                             # key_endpoint
             want = int(model_slope.endpoint(x, old_model))
-        assert key == (want & m32) ^ bias
+        assert key == ((want - offset) & m32) ^ bias
 
 
 def test_tna_names():

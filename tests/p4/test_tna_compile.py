@@ -83,10 +83,11 @@ def test_fits_in_twelve_stages(build):
 
 @needs_bf_p4c
 def test_stateful_alus_per_stage(build):
-    """At most 4 register actions (stateful ALUs) per stage; 11 registers in all."""
+    """At most 4 register actions (stateful ALUs) per stage; 13 registers in all (last_seq, and per
+    slot ring, ptr, run, s0, s1, last_class)."""
     rows = resource_rows(build)
     salus = [int(r["Meter ALU"]) for r in rows]
-    assert max(salus) <= 4 and sum(salus) == 1 + 5 * TNA_MONITORS, salus
+    assert max(salus) <= 4 and sum(salus) == 1 + 6 * TNA_MONITORS, salus
 
 
 @needs_bf_p4c
@@ -120,7 +121,9 @@ def test_control_plane_objects(build):
         actions = {a["name"]: [d["name"] for d in a.get("data", [])] for a in tables[f"{m}.compensate"]["action_specs"]}
         assert actions == {f"CivicIngress.mon{k}.set_offset": ["bias"]}
         actions = {a["name"] for a in tables[f"{m}.classify"]["action_specs"]}
-        assert actions == {f"CivicIngress.mon{k}.set_class"}
+        # TNA: one action per class (each runs its own last_class RegisterAction), set_class on a miss
+        assert actions == {f"CivicIngress.mon{k}.{a}" for a in ("set_normal", "set_warning", "set_error",
+                                                                 "set_class")}
 
 
 @needs_bf_p4c
@@ -130,7 +133,7 @@ def test_registers(build):
     for k in range(TNA_MONITORS):
         m = f"pipe.CivicIngress.mon{k}"
         want.update({f"{m}.ring": (32768, 32), f"{m}.ptr": (256, 8), f"{m}.run": (256, 8),
-                     f"{m}.s0": (256, 32), f"{m}.s1": (256, 32)})
+                     f"{m}.s0": (256, 32), f"{m}.s1": (256, 32), f"{m}.last_class": (256, 8)})
     registers = {n: t for n, t in tables.items() if t["table_type"] == "Register"}
     assert set(registers) == set(want)
     for name, (size, width) in want.items():
@@ -243,3 +246,16 @@ def test_slope_key_steps_match_the_model(window, lsq):
             key = d ^ bias                                     # key_endpoint
             want = int(model_slope.endpoint(x, old_model))
         assert key == (want & m32) ^ bias
+
+
+@needs_bf_p4c
+def test_verdict_change_digest_and_counters(build):
+    """pipeline.md section 7 on TNA: the ingress deparser's Digest, per-slot counters in egress."""
+    bfrt = json.loads((build / "bfrt.json").read_text())
+    learn = {f["name"]: [d["name"] for d in f["fields"]] for f in bfrt.get("learn_filters", [])}
+    assert learn["pipe.CivicIngressDeparser.verdict_change"] == [
+        "plant", "seq", "chg0", "chg1", "cls0", "cls1", "key0", "aux0", "level0", "key1", "aux1", "level1"]
+    tables = bfrt_tables(build)
+    for k in range(TNA_MONITORS):
+        counter = tables[f"pipe.CivicEgress.notify.verdicts{k}"]
+        assert counter["table_type"] == "Counter" and counter["size"] == 256 * 4

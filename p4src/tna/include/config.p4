@@ -67,4 +67,10 @@
 // civic train writes about 70 compensate ranges (16-bit key)
 #define TNA_COMPENSATE_TABLE_SIZE 128
 
+// Verdict changes (pipeline.md section 7): last_class holds the class, the
+// digest's chgK says "changed" with this bit (so that a change from "none
+// yet", 0, is not 0); ig_dprsr_md.digest_type of the verdict-change digest.
+#define CHANGED 4
+#define DIGEST_VERDICT_CHANGE 1
+
 #endif  /* _CIVIC_TNA_CONFIG_P4_ */

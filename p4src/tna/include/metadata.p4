@@ -71,6 +71,27 @@ struct monitor_md_t {
     bit<32> s1;             // s1 after the update
     bit<32> s0n;            // s0 after the update, + B
     bit<32> slope_key;      // (slope - offset) XOR 2^31
+    bit<8>  chg;            // 0: no verdict change; else last_class before | CHANGED
+}
+
+// The verdict-change digest of the two TNA slots (pipeline.md section 7,
+// p4src/README.md): chgK = 0 (no change) or CHANGED | previous class; clsK
+// the new class; the compensated slope key, aux and level of each slot
+// (raw slope = (key XOR 2^31) + compensate(aux), which the control plane
+// knows from its entries).
+struct verdict_change_tna_t {
+    bit<32> plant;
+    bit<32> seq;
+    bit<8>  chg0;
+    bit<8>  chg1;
+    bit<2>  cls0;
+    bit<2>  cls1;
+    bit<32> key0;
+    bit<16> aux0;
+    bit<16> level0;
+    bit<32> key1;
+    bit<16> aux1;
+    bit<16> level1;
 }
 
 struct ig_metadata_t {

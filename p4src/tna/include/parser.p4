@@ -75,7 +75,15 @@ control CivicIngressDeparser(packet_out pkt,
                              inout ig_headers_t hdr,
                              in ig_metadata_t meta,
                              in ingress_intrinsic_metadata_for_deparser_t ig_dprsr_md) {
+    Digest<verdict_change_tna_t>() verdict_change;
+
     apply {
+        if (ig_dprsr_md.digest_type == DIGEST_VERDICT_CHANGE) {
+            verdict_change.pack({hdr.ipv4.src_addr, hdr.plant.seq, meta.mon0.chg, meta.mon1.chg,
+                                 hdr.bridge.cls0, hdr.bridge.cls1,
+                                 meta.mon0.slope_key, meta.mon0.aux, meta.mon0.x,
+                                 meta.mon1.slope_key, meta.mon1.aux, meta.mon1.x});
+        }
         pkt.emit(hdr.bridge);
         pkt.emit(hdr.ethernet);
         pkt.emit(hdr.ipv4);

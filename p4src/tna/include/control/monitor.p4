@@ -174,6 +174,71 @@ control Monitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_prefix,
     }
 
     // ------------------------------------------------------------ classification
+    // and verdict changes (pipeline.md section 7). The class is an action
+    // constant here, not a parameter: the last_class register runs in the
+    // classify table's own stage (the last free one follows it), where a
+    // stateful ALU cannot read a class written in that stage, but can be
+    // handed one by the action that runs it. So one action per class, each with its own
+    // RegisterAction (one of them executes per packet):
+    //   chg = last_class == C ? 0 : last_class | CHANGED;  last_class = C
+    // (CHANGED = 4 marks a change even from "none yet", 0). The control plane
+    // writes set_normal / set_warning / set_error where v1model has
+    // set_class(1 / 2 / 3). The verdicts counter is in egress (notify.p4):
+    // the actions of one table must address their attached objects alike.
+    Register<bit<8>, bit<8>>(MAX_PLANTS, 0) last_class;
+
+    RegisterAction<bit<8>, bit<8>, bit<8>>(last_class) set_normal_swap = {
+        void apply(inout bit<8> value, out bit<8> rv) {
+            if (value == CLASS_NORMAL) {
+                rv = 0;
+            } else {
+                rv = value | CHANGED;
+            }
+            value = CLASS_NORMAL;
+        }
+    };
+
+    action set_normal() {
+        cls_out = CLASS_NORMAL;
+        m.chg = set_normal_swap.execute(slot);
+    }
+
+    RegisterAction<bit<8>, bit<8>, bit<8>>(last_class) set_warning_swap = {
+        void apply(inout bit<8> value, out bit<8> rv) {
+            if (value == CLASS_WARNING) {
+                rv = 0;
+            } else {
+                rv = value | CHANGED;
+            }
+            value = CLASS_WARNING;
+        }
+    };
+
+    action set_warning() {
+        cls_out = CLASS_WARNING;
+        m.chg = set_warning_swap.execute(slot);
+    }
+
+    RegisterAction<bit<8>, bit<8>, bit<8>>(last_class) set_error_swap = {
+        void apply(inout bit<8> value, out bit<8> rv) {
+            if (value == CLASS_ERROR) {
+                rv = 0;
+            } else {
+                rv = value | CHANGED;
+            }
+            value = CLASS_ERROR;
+        }
+    };
+
+    action set_error() {
+        cls_out = CLASS_ERROR;
+        m.chg = set_error_swap.execute(slot);
+    }
+    // A default action cannot address a register (bf-p4c: it would need the
+    // hash-distribution unit), so a miss gives the default class without
+    // touching last_class. A TNA control plane installs a lowest-priority
+    // catch-all entry with the default class instead (civic train's tables
+    // cover every key anyway), which keeps pipeline.md's semantics.
     action set_class(bit<2> cls) {
         cls_out = cls;
     }
@@ -191,7 +256,10 @@ control Monitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_prefix,
             m.x: range @name("level");
         }
         actions = {
-            set_class;
+            set_normal;
+            set_warning;
+            set_error;
+            @defaultonly set_class;
         }
         default_action = set_class(CLASS_DEFAULT);
         size = TNA_CLASSIFY_TABLE_SIZE;

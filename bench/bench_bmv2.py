@@ -41,7 +41,10 @@ def main() -> None:
     console = Console(stderr=True)
     training = ROOT / "traces" / "training"
     config = load_monitors()
-    entries = train(collect_runs(training, read_labels(training / "labels.csv"), config, "lsq"), config, "lsq", True)
+    from civic.envelope import calibrated
+    labels = read_labels(training / "labels.csv")
+    entries = train(collect_runs(training, labels, config, "lsq"), config, "lsq", True,
+                    calibrated(training, labels, config))         # civic train's default tables
     with tempfile.TemporaryDirectory() as tmp, console.status("BMv2 benchmark") as status:
         tmp = Path(tmp)
         civic_build, fwd_build = tmp / "civic", tmp / "forward"

@@ -37,7 +37,10 @@ def make_capture(path: Path, n: int) -> None:
 def main() -> None:
     labels = read_labels(ROOT / "traces" / "training" / "labels.csv")
     config = load_monitors()
-    entries = train(collect_runs(ROOT / "traces" / "training", labels, config, "lsq"), config, "lsq", True)
+    from civic.envelope import calibrated
+    training = ROOT / "traces" / "training"
+    entries = train(collect_runs(training, labels, config, "lsq"), config, "lsq", True,
+                    calibrated(training, labels, config))         # civic train's default tables
     with tempfile.TemporaryDirectory() as tmp:
         src, dst = Path(tmp) / "in.pcap", Path(tmp) / "out.pcap"
         make_capture(src, N_MESSAGES)

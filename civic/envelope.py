@@ -187,3 +187,11 @@ def compensation_table(model: PlantModel, plus: str, minus: str, scale: float, s
         rows.append([lo, hi if hi < top else 0xFFFF, int(round(mid / step)) * step])
         lo = hi + 1
     return np.array(rows, dtype=np.int64)
+
+
+def calibrated(folder: str | Path, labels: list[dict], config, model: PlantModel | None = None) -> Envelope:
+    """The envelope of `civic train`'s default: the plant model (default configs/plant.toml)
+    calibrated to the labelled recordings in `folder`."""
+    if model is None:
+        model = PlantModel.from_toml(Path(__file__).resolve().parent.parent / "configs" / "plant.toml")
+    return Envelope(model).fit(load_recorded(folder, labels, config.udp_port, config.plant_prefix))

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from data import ROOT, TRAINING
+from data import TRAINING
 
 
 @pytest.fixture(scope="session")
@@ -20,14 +20,12 @@ def training_runs():
 def trained_entries(training_runs):
     """Entries from `civic train` defaults (lsq, banded, calibrated) on the bundled recordings."""
     from civic.config import load_monitors
-    from civic.envelope import Envelope, load_recorded
-    from civic.plant.model import PlantModel
+    from civic.envelope import calibrated
     from civic.train import read_labels, train
 
     config = load_monitors()
-    recorded = load_recorded(TRAINING, read_labels(TRAINING / "labels.csv"), config.udp_port, config.plant_prefix)
-    envelope = Envelope(PlantModel.from_toml(ROOT / "configs/plant.toml")).fit(recorded)
-    return train(training_runs["lsq"], config, "lsq", True, envelope)
+    return train(training_runs["lsq"], config, "lsq", True,
+                 calibrated(TRAINING, read_labels(TRAINING / "labels.csv"), config))
 
 
 @pytest.fixture(scope="session")

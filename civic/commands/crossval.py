@@ -75,7 +75,8 @@ def run(args) -> int:
                 report["leave_one_run_out"].setdefault(mon.name, {})[mode] = s
                 progress.advance(task)
     if args.sim:
-        entries = {mode: train(runs[est], config, est, banded, Envelope(model).fit(recorded) if cal else None)
+        envelope = Envelope(model).fit(recorded)
+        entries = {mode: train(runs[est], config, est, banded, envelope if cal else None)
                    for mode, (est, banded, cal) in MODES.items()}
         report["simulated"] = simulated_scores(entries, model, args.spread, args.seed)
 

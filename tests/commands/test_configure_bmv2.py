@@ -18,13 +18,9 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = [
-    pytest.mark.bmv2,
-    pytest.mark.skipif(not (shutil.which("p4c-bm2-ss") and shutil.which("simple_switch_grpc")),
-                       reason="p4c-bm2-ss and simple_switch_grpc not both on PATH"),
-    pytest.mark.skipif(not (hasattr(os, "geteuid") and os.geteuid() == 0),
-                       reason="BMv2 needs root (network namespace)"),
-]
+from needs import BMV2
+
+pytestmark = BMV2
 
 ROOT = Path(__file__).resolve().parents[2]
 

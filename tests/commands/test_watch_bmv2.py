@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import signal
 import socket
 import subprocess
@@ -19,14 +18,9 @@ import pytest
 
 from civic.wire import CLASS_CODES, OFF_VERDICT, int_to_ip, monitor_verdict, read_pcap
 from frames import changing_fleet
+from needs import BMV2
 
-pytestmark = [
-    pytest.mark.bmv2,
-    pytest.mark.skipif(not (shutil.which("p4c-bm2-ss") and shutil.which("simple_switch_grpc")),
-                       reason="p4c-bm2-ss and simple_switch_grpc not both on PATH"),
-    pytest.mark.skipif(not (hasattr(os, "geteuid") and os.geteuid() == 0),
-                       reason="BMv2 needs root (network namespace)"),
-]
+pytestmark = BMV2
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "COLUMNS": "200"}

@@ -129,3 +129,19 @@ def test_watch_an_unreachable_switch_is_one_line(tmp_path):
     res = civic("watch", "--switch", "127.0.0.1:1", "--timeout", "1", "--duration", "1")
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
     assert "cannot reach switch 127.0.0.1:1" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_watch_a_switch_without_civics_pipeline_is_one_line(switch, tmp_path):
+    def one_line(res, words):
+        assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+        assert words in res.stderr and "Traceback" not in res.stderr, res.stderr
+
+    one_line(civic("watch", "--switch", switch.address, "--duration", "1"), "runs no pipeline")
+    from civic import p4runtime as p4rt
+    from civic.bmv2 import compile_v1model
+    compile_v1model(ROOT / "bench" / "p4" / "forward.p4", tmp_path / "fwd")
+    pipe = p4rt.load_pipeline(tmp_path / "fwd")
+    with p4rt.SwitchConnection(switch.address) as conn:
+        conn.set_pipeline(pipe.p4info, pipe.device_config, pipe.cookie)
+    one_line(civic("watch", "--switch", switch.address, "--duration", "1"),
+             "not a CIVIC pipeline with verdict digests")

@@ -22,18 +22,19 @@
  *
  * Ingress stage plan as bf-p4c 9.13.4 placed it (both slots in each stage):
  *   0  forward, monitored_port, plant_prefix, seq - 1, monK.config,
- *      monK.precondition_cmd, mon1.precondition
- *   1  last_seq (gap), ptr, x (by signal), aux, mon0.precondition
+ *      monK.precondition, monK.precondition_cmd
+ *   1  last_seq (gap), ptr, x (by signal), aux = x[aux_plus] |-| x[aux_minus]
  *   2  ring (old), x widened to 32 bit, compensate (bias)
- *   3  run, d = x - old, R*old shifts           (endpoint: slope_key)
- *   4  s0, R*old adds, e = d + bias (B - offset / (W - 1))
+ *   3  run, d = x - old, R*old shifts
+ *   4  s0, R*old adds, e = d + bias (bias = B - offset / (W - 1))
+ *                                  (endpoint: slope_key = d + bias)
  *   5  R*old, s0n = s0 + e, t (mon0)
  *   6  t = s0 - R*old, s1 (mon0), (W-1)*s0n shifts
  *   7  s1 (mon1), (W-1)*s0n adds, 2*s1
  *   8  (W-1)*s0n
  *   9  slope_key = (W-1)*s0n - 2*s1
- *  10  classify
- *  11  free
+ *  10  classify, last_class
+ *  11  digest_type (a slot's verdict changed)
  * Egress: verdict word from the bridge header, checksum (stages 0-8).
  */
 #include <core.p4>

@@ -1,6 +1,8 @@
 """The Tofino (TNA) program compiles with bf-p4c, and the compiler's output says what
 p4src/README.md says it does: 12 stages or fewer, the control-plane objects of the
-v1model program (with the two documented TNA differences), the register sizes and widths.
+v1model program (with the documented TNA differences), the register sizes and widths,
+and the compensation (pipeline.md 3a) in no stage of its own: aux and compensate are
+placed before the stage-4 step that adds compensate's bias.
 
 One compile (about 15 s on a 2-core machine) shared by every test of this module.
 Skipped when bf-p4c is not on PATH (the open-source Tofino backend, see p4src/README.md).
@@ -59,6 +61,18 @@ def resource_rows(build: Path) -> list[dict[str, str]]:
 
 def bfrt_tables(build: Path) -> dict[str, dict]:
     return {t["name"]: t for t in json.loads((build / "bfrt.json").read_text())["tables"]}
+
+
+def ingress_stages(build: Path) -> dict[str, int]:
+    """First ingress stage of every table in civic.bfa, by P4 name (@hidden steps included)."""
+    stages: dict[str, int] = {}
+    stage = None
+    for line in (build / "pipe/civic.bfa").read_text().splitlines():
+        if m := re.match(r"stage (\d+) (ingress|egress):", line):
+            stage = int(m.group(1)) if m.group(2) == "ingress" else None
+        elif stage is not None and (m := re.match(r"\s+p4: \{ name: ([\w.$]+)", line)):
+            stages.setdefault(m.group(1), stage)
+    return stages
 
 
 @needs_bf_p4c
@@ -155,6 +169,53 @@ def test_ring_index_puts_the_slot_in_the_high_bits(build):
         assert (p_hi - p_lo, s_lo - p_lo, s_hi - s_lo) == (6, 7, 7)
 
 
+@needs_bf_p4c
+def test_compensation_takes_no_stage(build):
+    """config -> aux -> compensate end before the step that adds compensate's bias (stage 4:
+    e = d + bias, lsq; slope_key = d + bias, endpoint), so classify stays where it was."""
+    c = config_defines()
+    stages = ingress_stages(build)
+    for k in range(TNA_MONITORS):
+        m = f"CivicIngress.mon{k}"
+        add_bias = f"{m}.diff_b" if c[f"MON{k}_LSQ"][0] else f"{m}.key_endpoint"
+        chain = [stages[f"{m}.{t}"] for t in ("config", "aux_diff", "compensate")] + [stages[add_bias]]
+        assert chain == sorted(set(chain)), (k, chain)      # strictly increasing stages
+        # the bias step waits for d = x - old only, not for compensate
+        assert stages[add_bias] == stages[f"{m}.diff"] + 1, (k, stages[add_bias])
+        # classify before the last ingress stage (which sets the verdict-change digest)
+        assert stages[f"{m}.classify"] <= MAX_STAGES - 2, (k, stages[f"{m}.classify"])
+
+
+@needs_bf_p4c
+def test_aux_is_one_saturating_subtract(build):
+    """aux = max(x[aux_plus] - x[aux_minus], 0): each of the 12 (plus, minus) actions of the
+    @hidden aux_diff table is one saturating unsigned subtract (Tofino `ssubu`)."""
+    bfa = (build / "pipe/civic.bfa").read_text()
+    for k in range(TNA_MONITORS):
+        acts = re.findall(rf"CivicIngress\.mon{k}\.aux_(l\d)_(l\d)\(\d+, \d+\):\n((?:[ \t]+- .*\n)+)", bfa)
+        pairs = {(a, b) for a, b, _ in acts}
+        assert pairs == {(f"l{i}", f"l{j}") for i in range(1, 5) for j in range(1, 5) if i != j}, k
+        for a, b, body in acts:
+            ops = [ln.split("-", 1)[1].split()[0] for ln in body.splitlines()
+                   if ln.strip().startswith("- ") and ":" not in ln]
+            assert ops == ["ssubu"], (k, a, b, body)
+
+
+@needs_bf_p4c
+def test_compensate_default_is_offset_zero(build):
+    """compensate's default set_offset(bias) is the slot's key bias: MONk_S0_BIAS (lsq, B) or
+    0x80000000 (endpoint), i.e. offset 0 (monitor.p4, p4src/README.md)."""
+    c = config_defines()
+    bfa = (build / "pipe/civic.bfa").read_text()
+    for k in range(TNA_MONITORS):
+        start = bfa.index(f"p4: {{ name: CivicIngress.mon{k}.compensate, size: {c['TNA_COMPENSATE_TABLE_SIZE'][0]} }}")
+        end = bfa.index("p4: { name:", start + 1)
+        m = re.search(r'default_action_parameters:\s*\n\s*bias: "(0x[0-9a-fA-F]+)"', bfa[start:end])
+        assert m, f"mon{k}: compensate's default bias not found in civic.bfa"
+        want = c[f"MON{k}_S0_BIAS"][0] if c[f"MON{k}_LSQ"][0] else 0x80000000
+        assert int(m.group(1), 16) == want, k
+
+
 # ---------------------------------------------------------------- the arithmetic as compiled
 def config_defines() -> dict[str, tuple[int, ...]]:
     text = (ROOT / "p4src/tna/include/config.p4").read_text()
@@ -204,8 +265,8 @@ def test_configured_slots_are_consistent():
     c = config_defines()
     for k in range(c["TNA_MONITORS"][0]):
         w, r, lsq = c[f"MON{k}_WINDOW"][0], c[f"MON{k}_RING_LEN"][0], c[f"MON{k}_LSQ"][0]
-        if lsq:
-            assert c[f"MON{k}_S0_BIAS"][0] == s0_bias(w), f"MON{k}_S0_BIAS"
+        # the slot's key bias, also compensate's default bias (offset 0)
+        assert c[f"MON{k}_S0_BIAS"][0] == (s0_bias(w) if lsq else 0x80000000), f"MON{k}_S0_BIAS"
         for v in (1, 0xFFFF, 0x7FFFFFFF, 0xFFFFFFFF):
             assert const_mul_steps(v, *c[f"MON{k}_R_MUL"]) == (v * r) & 0xFFFFFFFF
             assert const_mul_steps(v, *c[f"MON{k}_W1_MUL"]) == (v * (w - 1)) & 0xFFFFFFFF
@@ -214,13 +275,22 @@ def test_configured_slots_are_consistent():
 @pytest.mark.parametrize("window,lsq", [(20, True), (90, True), (21, True), (2, True), (3, True),
                                         (97, True), (128, True), (20, False), (2, False), (127, False)])
 def test_slope_key_steps_match_the_model(window, lsq):
-    """monitor.p4's steps (TNA) against the software model: registers and slope_key."""
+    """monitor.p4's steps (TNA) against the software model: registers and slope_key, with
+    compensate's bias for offset 0 and for offsets up to |2^30| (pipeline.md 3a):
+    bias = B - offset / (W - 1) (lsq), 2^31 - offset (endpoint), mod 2^32."""
     from civic.pipeline import data_collection
     from civic.pipeline import slope as model_slope
+    from civic.pipeline.classification import slope_key as model_key
 
     m32, bias = 0xFFFFFFFF, 0x80000000
     r = window if lsq else window - 1
-    b = s0_bias(window) if lsq else 0
+    b = s0_bias(window) if lsq else bias
+    step = window - 1 if lsq else 1             # lsq offsets are multiples of W - 1
+    top = (1 << 30) // step * step
+    offsets = (0, step, -step, 1520 * step, -1520 * step, top, -top)
+    # the set_offset(bias) a TNA control plane writes for an offset; the default is b (offset 0)
+    biases = {off: (b - off // step) & m32 if lsq else (bias - off) & m32 for off in offsets}
+    assert biases[0] == b
     ring = data_collection.RingState(1, r)
     ring_t, ptr, s0, s1 = [0] * 128, 0, 0, 0
     rng = __import__("random").Random(window)
@@ -237,15 +307,19 @@ def test_slope_key_steps_match_the_model(window, lsq):
         s1 = (s1 + t) & m32                                    # s1_add
         assert (s0, s1) == (int(ring.s0[0]), int(ring.s1[0]))
         if lsq:
-            e = (d + b) & m32                                  # diff_b
-            s0n = (s0_old + e) & m32                           # s0_new_b
-            prod = const_mul_steps(s0n, *csd(window - 1))      # (W - 1) * s0n
-            key = (prod - ((s1 << 1) & m32)) & m32             # s1_twice, key_lsq_b
             want = int(model_slope.lsq(ring.s0[0], ring.s1[0], window))
         else:
-            key = d ^ bias                                     # key_endpoint
             want = int(model_slope.endpoint(x, old_model))
-        assert key == (want & m32) ^ bias
+        for off, bias_off in biases.items():
+            if lsq:
+                e = (d + bias_off) & m32                       # diff_b
+                s0n = (s0_old + e) & m32                       # s0_new_b
+                prod = const_mul_steps(s0n, *csd(window - 1))  # (W - 1) * s0n
+                key = (prod - ((s1 << 1) & m32)) & m32         # s1_twice, key_lsq_b
+            else:
+                key = (d + bias_off) & m32                     # key_endpoint
+            assert key == ((want - off) & m32) ^ bias, off     # resid XOR 2^31
+            assert key == int(model_key(want - off)), off
 
 
 @needs_bf_p4c

@@ -64,7 +64,11 @@
 // tables smaller than on v1model (a trained class table has tens of rows).
 #define TNA_PRECONDITION_TABLE_SIZE 64
 #define TNA_CLASSIFY_TABLE_SIZE 256
-// civic train writes about 70 compensate ranges (16-bit key)
+// compensate: civic train writes about 70 ranges (16-bit key aux). bf-p4c
+// reserves TCAM rows for 25 % of a range table's entries at 2 * 4 - 1 = 7
+// rows (4-bit DirtCAM per nibble) and 1 row for the rest: 128 entries = 320
+// rows, one 512-row TCAM block per slot (256 would take two). v1model:
+// COMPENSATE_TABLE_SIZE 256 (shared/define.p4).
 #define TNA_COMPENSATE_TABLE_SIZE 128
 
 // Verdict changes (pipeline.md section 7): last_class holds the class, the

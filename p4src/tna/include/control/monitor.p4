@@ -14,9 +14,10 @@
  *    parameters c_window, c_ring_len, c_lsq, from include/config.p4):
  *    Tofino has no run-time multiplier, and R * old and (W - 1) * s0 are
  *    shift-and-add sums (const_mul.p4).
- *    set_config keeps its five parameters so that the control plane is
- *    the same, but only `enabled` and `signal` are used here; window,
- *    ring_len and lsq must equal the compiled constants;
+ *    set_config keeps its seven parameters so that the control plane is
+ *    the same, but only `enabled`, `signal`, `aux_plus` and `aux_minus`
+ *    are used here; window, ring_len and lsq must equal the compiled
+ *    constants;
  *  - a register is accessed once per packet, by one RegisterAction that
  *    reads, modifies and writes it in the stateful ALU (run has three
  *    RegisterActions for the three mutually exclusive cases, of which one
@@ -34,11 +35,12 @@
  * message (valid, monitored port, plant prefix) when the slot is enabled.
  *
  * Dependent steps (stage plan in tna/civic.p4 and p4src/README.md), lsq:
- *   1 x, ptr  2 ring (old), x32  3 d, R*old shifts, run  4 s0, R*old adds,
- *   e  5 R*old, s0n  6 t, (W-1)*s0n shifts  7 s1, adds  8 prod, 2*s1
+ *   0 config  1 x, ptr, aux  2 ring (old), x32, compensate (bias)
+ *   3 d, R*old shifts, run  4 s0, R*old adds, e = d + bias
+ *   5 R*old, s0n  6 t, (W-1)*s0n shifts  7 s1, adds  8 prod, 2*s1
  *   9 slope_key  10 classify
- * endpoint: as far as 3 d, then 4 slope_key  5 classify (the sums are still
- * kept, as pipeline.md requires).
+ * endpoint: as far as 3 d, then 4 slope_key = d + bias  5 classify (the
+ * sums are still kept, as pipeline.md requires).
  *
  * Slope bias: slope_key = slope XOR 2^31 = slope + 2^31 (mod 2^32).
  *   endpoint: slope_key = (x - old) XOR 2^31;
@@ -53,9 +55,13 @@
  *             e = d + bias, so slope_key = (W - 1) * (s0' + B) - 2 * s1'
  *             - offset = (slope - offset) XOR 2^31
  *   endpoint: bias = 2^31 - offset,  slope_key = d + bias
- * and a miss keeps the default set_offset(c_s0_bias): offset 0. The chain
- * config -> aux (one table on aux_plus, aux_minus) -> compensate ends in
- * stage 2, before the stage-4 step that adds bias.
+ * (all mod 2^32) and a miss keeps the default set_offset(c_s0_bias):
+ * offset 0 (c_s0_bias = B for lsq, 2^31 = SLOPE_BIAS for endpoint).
+ * v1model's set_offset(offset) takes the offset itself; a control plane
+ * for TNA writes set_offset(bias) with the bias above. The chain
+ * config (stage 0) -> aux (1: one table on (aux_plus, aux_minus) whose
+ * action is one saturating subtract, `ssubu` in civic.bfa) -> compensate
+ * (2) ends before the stage-4 step that adds bias: no stage of its own.
  *
  * set_class writes the class straight into the slot's field of the bridge
  * header (cls_out); a slot that is not evaluated keeps the 0 the ingress

@@ -14,6 +14,7 @@ import numpy as np
 
 from civic.errors import CivicError
 from civic.pipeline.notify import Change
+from civic.pipeline.slope import to_int32
 from civic.wire import VERDICT_NAMES, int_to_ip
 
 KEYS = ("t", "plant", "monitor", "from", "to", "seq", "slope", "level")
@@ -23,16 +24,11 @@ def class_name(code: int) -> str | None:
     return VERDICT_NAMES[code] if code else None
 
 
-def to_int32(v: int) -> int:
-    v &= 0xFFFFFFFF
-    return v - (1 << 32) if v >= 1 << 31 else v
-
-
 def event(change: Change, t: float, monitors: list[str]) -> dict:
     name = monitors[change.monitor] if change.monitor < len(monitors) else f"m{change.monitor}"
     return {"t": round(float(t), 6), "plant": int_to_ip(change.plant), "monitor": name,
             "from": class_name(change.prev), "to": class_name(change.cls), "seq": int(change.seq),
-            "slope": to_int32(change.slope), "level": int(change.level)}
+            "slope": int(to_int32(change.slope)), "level": int(change.level)}
 
 
 def digest_changes(member: dict[str, int], monitors: int) -> list[Change]:
@@ -41,7 +37,7 @@ def digest_changes(member: dict[str, int], monitors: int) -> list[Change]:
     for m in range(monitors):
         if member["changed"] >> m & 1:
             out.append(Change(-1, member["plant"], m, member["prev"] >> 2 * m & 3, member["cls"] >> 2 * m & 3,
-                              member["seq"], to_int32(member[f"slope{m}"]), member[f"level{m}"]))
+                              member["seq"], int(to_int32(member[f"slope{m}"])), member[f"level{m}"]))
     return out
 
 

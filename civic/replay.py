@@ -36,10 +36,13 @@ def replay_files(inputs: list[Path], outputs: list[Path], entries: Entries, entr
             if len(cap):
                 stats["t_end"] = max(stats.get("t_end", 0.0), float(cap.messages["t"].max()))
             if target == "model":  # a freshly reset software switch per input
-                if events is not None:
-                    msgs = cap.messages
-                    events += [event(c, msgs["t"][c.index], names) for c in SwitchModel(entries).verdict_changes(msgs)]
-                cap.set_verdicts(SwitchModel(entries).run(cap.messages))
+                msgs = cap.messages
+                if events is None:
+                    cap.set_verdicts(SwitchModel(entries).run(msgs))
+                else:                    # the verdicts and their changes from one pass
+                    verdicts, changes = SwitchModel(entries).run_with_changes(msgs)
+                    events += [event(c, msgs["t"][c.index], names) for c in changes]
+                    cap.set_verdicts(verdicts)
                 cap.write(dst)
                 stats["evaluated"] += with_verdict(cap)
             else:

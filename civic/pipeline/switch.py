@@ -133,7 +133,14 @@ class SwitchModel:
 
     def verdict_changes(self, messages: np.ndarray) -> list[notify.Change]:
         """Every verdict change (the switch's digests), in message order, monitors in order."""
+        return self._changes(messages, *self.traces(messages))
+
+    def run_with_changes(self, messages: np.ndarray) -> tuple[np.ndarray, list[notify.Change]]:
+        """`run` and `verdict_changes` from one pass over the messages."""
         idx, traces = self.traces(messages)
+        return self._verdicts(messages, idx, traces), self._changes(messages, idx, traces)
+
+    def _changes(self, messages, idx, traces) -> list[notify.Change]:
         slots = plant_lookup.plant_slot(messages["src"][idx])
         out = []
         for m, tr in enumerate(traces):
@@ -153,7 +160,10 @@ class SwitchModel:
 
     def run(self, messages: np.ndarray) -> np.ndarray:
         """Verdict of every message (vectorized); non-plant messages keep their verdict field."""
-        idx, traces = self.traces(messages)
+        return self._verdicts(messages, *self.traces(messages))
+
+    @staticmethod
+    def _verdicts(messages, idx, traces) -> np.ndarray:
         out = messages["verdict"].copy()
         if len(idx):
             out[idx] = verdict_bits([t.code for t in traces])

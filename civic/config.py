@@ -9,24 +9,39 @@ from civic.files import read_toml
 from civic.wire import DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, MAX_MONITORS, SIGNALS, parse_prefix
 
 LEVEL_SIGNALS = ("l1", "l2", "l3", "l4")
+STEP_FIELDS = ("dp1", "dv1", "dv2")          # command steps since the plant's previous message
+PRECONDITION_FIELDS = SIGNALS + STEP_FIELDS
+KINDS = ("slope", "balance", "limit")
 MIN_WINDOW, MAX_WINDOW = 2, 128
+MAX_HOLD = 255
+MAX_FLOWS = 2                                # flow terms of a balance monitor
 DEFAULT_MONITORS = Path(__file__).resolve().parent.parent / "configs" / "monitors.toml"
 
 
 @dataclass
 class Monitor:
-    """One monitor: a level signal, a window, an instantaneous precondition and, optionally,
-    the two levels whose difference drives the tank's inflow (compensated, docs/pipeline.md 3a)."""
+    """One monitor: a level signal, a window, a precondition and, optionally, the two levels
+    whose difference drives the tank's inflow (compensated, docs/pipeline.md 3a).
+
+    `kind` "slope" classifies the level's slope (the test monitors), "balance" the tank's
+    mass-balance residual over the model components named in `flows`, banded by the
+    expected flow of the `band` component (pipeline.md 3b), "limit" the level's value.
+    `hold`: a class is written once the table gave it on that many consecutive messages.
+    """
 
     name: str
     signal: str
     window: int
     precondition: dict[str, tuple[int, int]] = field(default_factory=dict)
     compensate: tuple[str, str] | None = None
+    kind: str = "slope"
+    hold: int = 1
+    flows: tuple[str, ...] = ()
+    band: str | None = None
 
     def ranges(self) -> list[tuple[int, int]]:
-        """Precondition as one inclusive range per wire field, in SIGNALS order."""
-        return [self.precondition.get(s, (0, 0xFFFF)) for s in SIGNALS]
+        """Precondition as one inclusive range per field, in PRECONDITION_FIELDS order."""
+        return [self.precondition.get(s, (0, 0xFFFF)) for s in PRECONDITION_FIELDS]
 
 
 @dataclass
@@ -59,8 +74,8 @@ def parse_precondition(raw, what: str) -> dict[str, tuple[int, int]]:
         raise CivicError(f"{what}: expected a table of field = [lo, hi]")
     out = {}
     for key, rng in raw.items():
-        if key not in SIGNALS:
-            raise CivicError(f"{what}.{key}: unknown field (one of {', '.join(SIGNALS)})")
+        if key not in PRECONDITION_FIELDS:
+            raise CivicError(f"{what}.{key}: unknown field (one of {', '.join(PRECONDITION_FIELDS)})")
         out[key] = check_range(rng, f"{what}.{key}", 0, 0xFFFF)
     return out
 
@@ -85,7 +100,33 @@ def parse_monitor(raw, what: str) -> Monitor:
             raise CivicError(f"{what}.compensate: expected two different levels [plus, minus] "
                              f"from {', '.join(LEVEL_SIGNALS)}, got {comp!r}")
         comp = (comp[0], comp[1])
-    return Monitor(name=name, signal=raw["signal"], window=window, precondition=pre, compensate=comp)
+    kind = raw.get("kind", "slope")
+    if kind not in KINDS:
+        raise CivicError(f"{what}.kind: {kind!r} is not one of {', '.join(KINDS)}")
+    hold = check_int(raw.get("hold", 1), f"{what}.hold", 1, MAX_HOLD)
+    flows, band = parse_flows(raw, what, kind)
+    if comp is not None and kind != "slope":
+        raise CivicError(f"{what}.compensate: only slope monitors are compensated")
+    return Monitor(name=name, signal=raw["signal"], window=window, precondition=pre, compensate=comp,
+                   kind=kind, hold=hold, flows=flows, band=band)
+
+
+def parse_flows(raw: dict, what: str, kind: str) -> tuple[tuple[str, ...], str | None]:
+    """A balance monitor's flow terms: names of the plant model's links and pumps (1 or 2)."""
+    flows, band = raw.get("flows"), raw.get("band")
+    if kind != "balance":
+        if flows is not None or band is not None:
+            raise CivicError(f"{what}: flows/band belong to balance monitors (kind = \"balance\")")
+        return (), None
+    if (not isinstance(flows, list) or not 1 <= len(flows) <= MAX_FLOWS
+            or not all(isinstance(f, str) and f for f in flows) or len(set(flows)) != len(flows)):
+        raise CivicError(f"{what}.flows: expected 1 to {MAX_FLOWS} distinct model component names, "
+                         f"got {str(flows)[:60]}")
+    if band is None:
+        band = flows[-1]
+    if band not in flows:
+        raise CivicError(f"{what}.band: {band!r} is not one of the monitor's flows {flows}")
+    return tuple(flows), band
 
 
 def check_monitor_list(monitors: list[Monitor], what: str) -> None:

@@ -10,20 +10,39 @@ from pathlib import Path
 
 import numpy as np
 
-from civic.config import (Monitor, check_int, check_monitor_list, check_range, parse_common,
+from civic.config import (MAX_FLOWS, Monitor, check_int, check_monitor_list, check_range, parse_common,
                           parse_monitor)
 from civic.errors import CivicError
 from civic.files import read_json
 from civic.wire import CLASS_CODES
 
-FORMAT = "civic-entries/2"
-FORMATS = ("civic-entries/1", FORMAT)   # format 1: no compensation
-ESTIMATORS = ("endpoint", "lsq")
+FORMAT = "civic-entries/3"
+FORMATS = ("civic-entries/1", "civic-entries/2", FORMAT)   # 1: no compensation; 2: no balance/limit/hold
+ESTIMATORS = ("endpoint", "lsq", "value")
+OPERANDS = ("l1", "l2", "l3", "l4", "p1", "v1", "v2", "zero")   # what a flow term's keys read
+FLOW_COLUMNS = ("head_lo", "head_hi", "cmd_lo", "cmd_hi", "flow", "band")
+FLOW_MAX = 2**24            # |flow| bound, sixteenths of a mL per sample (pipeline.md 3b)
+BALANCE_SHIFT = 4           # balance monitors push (x << 4) - acc: sixteenths of a mL
 SLOPE_MIN, SLOPE_MAX = -(2**31), 2**31 - 1
 LEVEL_MAX = 0xFFFF
 CLASS_COLUMNS = ("slope_lo", "slope_hi", "level_lo", "level_hi", "cls")
 OFFSET_COLUMNS = ("aux_lo", "aux_hi", "offset")
 OFFSET_MAX = 2**30          # |offset| bound: slope - offset never wraps (pipeline.md 3a)
+
+
+@dataclass
+class FlowTerm:
+    """One expected-flow lookup of a balance monitor: keys head = f[plus] - f[minus] (mod 2^16)
+    and cmd = f[command]; rows of FLOW_COLUMNS (pipeline.md 3b)."""
+
+    head: tuple[str, str]
+    command: str
+    rows: np.ndarray
+
+    def to_json(self) -> dict:
+        return {"head": list(self.head), "command": self.command,
+                "entries": [{"head": [int(r[0]), int(r[1])], "command": [int(r[2]), int(r[3])],
+                             "flow": int(r[4]), "band": int(r[5])} for r in self.rows]}
 
 
 @dataclass
@@ -34,6 +53,7 @@ class MonitorEntries(Monitor):
     default_class: int = CLASS_CODES["error"]
     classes: np.ndarray = field(default_factory=lambda: np.zeros((0, 5), dtype=np.int64))
     offsets: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int64))
+    terms: list[FlowTerm] = field(default_factory=list)
 
     @property
     def aux_signals(self) -> tuple[str, str]:
@@ -43,23 +63,27 @@ class MonitorEntries(Monitor):
     @property
     def ring_len(self) -> int:
         """lsq needs the value leaving the W-window; endpoint needs the window's oldest."""
-        return self.window if self.estimator == "lsq" else self.window - 1
+        return self.window - 1 if self.estimator == "endpoint" else self.window
 
     @property
     def slope_scale(self) -> float:
-        """Raw slope -> mL/s (10 samples per second)."""
+        """Raw slope -> mL/s (10 samples per second); a limit monitor's raw value is mL."""
         w = self.window
+        if self.estimator == "value":
+            return 1.0
         per_sample = 6.0 / (w * (w * w - 1)) if self.estimator == "lsq" else 1.0 / (w - 1)
-        return per_sample * 10.0
+        return per_sample * 10.0 / (1 << BALANCE_SHIFT if self.kind == "balance" else 1)
 
     def to_json(self) -> dict:
         return {
-            "name": self.name, "signal": self.signal, "window": self.window,
-            "estimator": self.estimator,
+            "name": self.name, "kind": self.kind, "signal": self.signal, "window": self.window,
+            "hold": self.hold, "estimator": self.estimator,
             "precondition": {k: list(v) for k, v in self.precondition.items()},
             **({"compensation": {"signal": self.compensate[0], "minus": self.compensate[1],
                                  "offsets": [{"aux": [int(r[0]), int(r[1])], "offset": int(r[2])}
                                              for r in self.offsets]}} if self.compensate else {}),
+            **({"flows": list(self.flows), "band": self.band,
+                "flow_terms": [t.to_json() for t in self.terms]} if self.kind == "balance" else {}),
             "slope_scale_ml_per_s": self.slope_scale,
             "default_class": self.default_class,
             "classes": [{"slope": [int(r[0]), int(r[1])], "level": [int(r[2]), int(r[3])], "class": int(r[4])}
@@ -95,14 +119,17 @@ def check_no_overlap(classes: np.ndarray, what: str) -> None:
         hit = ((rest[:, 0] <= a[1]) & (a[0] <= rest[:, 1]) & (rest[:, 2] <= a[3]) & (a[2] <= rest[:, 3]))
         if np.any(hit):
             j = i + 1 + int(np.flatnonzero(hit)[0])
-            raise CivicError(f"{what}: class entries {i} and {j} overlap")
+            raise CivicError(f"{what}: entries {i} and {j} overlap")
 
 
 def parse_monitor_entries(raw, what: str) -> MonitorEntries:
     base = parse_monitor(raw, what)
-    est = raw.get("estimator", "lsq")
+    est = raw.get("estimator", "value" if base.kind == "limit" else "lsq")
     if est not in ESTIMATORS:
         raise CivicError(f"{what}.estimator: {est!r} is not one of {', '.join(ESTIMATORS)}")
+    if (est == "value") != (base.kind == "limit"):
+        raise CivicError(f"{what}.estimator: {est!r} does not suit a {base.kind} monitor "
+                         f"(limit monitors use 'value', the others endpoint or lsq)")
     default = check_int(raw.get("default_class", 3), f"{what}.default_class", 1, 3)
     rows = raw.get("classes")
     if not isinstance(rows, list):
@@ -117,12 +144,49 @@ def parse_monitor_entries(raw, what: str) -> MonitorEntries:
                 raise CivicError(f"{w}: missing key '{key}'")
         table[i, 0:2] = check_range(row["slope"], f"{w}.slope", SLOPE_MIN, SLOPE_MAX)
         table[i, 2:4] = check_range(row.get("level", [0, LEVEL_MAX]), f"{w}.level", 0, LEVEL_MAX)
-        table[i, 4] = check_int(row["class"], f"{w}.class", 1, 3)
+        table[i, 4] = check_int(row["class"], f"{w}.class", 0, 3)
     check_no_overlap(table, what)
     comp, offsets = parse_compensation(raw.get("compensation"), f"{what}.compensation", est, base.window)
+    terms = parse_terms(raw.get("flow_terms"), f"{what}.flow_terms", base.kind)
     return MonitorEntries(name=base.name, signal=base.signal, window=base.window,
-                          precondition=base.precondition, compensate=comp, estimator=est,
-                          default_class=default, classes=table, offsets=offsets)
+                          precondition=base.precondition, compensate=comp, kind=base.kind, hold=base.hold,
+                          flows=base.flows, band=base.band,
+                          estimator=est, default_class=default, classes=table, offsets=offsets, terms=terms)
+
+
+def parse_terms(raw, what: str, kind: str) -> list[FlowTerm]:
+    """A balance monitor's flow terms (pipeline.md 3b): keys, and disjoint entries per term."""
+    if kind != "balance":
+        if raw is not None:
+            raise CivicError(f"{what}: only balance monitors have flow terms")
+        return []
+    if not isinstance(raw, list) or not 1 <= len(raw) <= MAX_FLOWS:
+        raise CivicError(f"{what}: expected a list of 1 to {MAX_FLOWS} flow terms")
+    terms = []
+    for k, term in enumerate(raw):
+        w = f"{what}[{k}]"
+        if not isinstance(term, dict) or not all(key in term for key in ("head", "command", "entries")):
+            raise CivicError(f"{w}: expected an object with head, command, entries")
+        head = term["head"]
+        if not isinstance(head, list) or len(head) != 2 or not all(h in OPERANDS for h in head):
+            raise CivicError(f"{w}.head: expected [plus, minus] from {', '.join(OPERANDS)}, got {head!r}")
+        if term["command"] not in OPERANDS:
+            raise CivicError(f"{w}.command: {term['command']!r} is not one of {', '.join(OPERANDS)}")
+        rows = term["entries"]
+        if not isinstance(rows, list):
+            raise CivicError(f"{w}.entries: expected a list")
+        table = np.zeros((len(rows), 6), dtype=np.int64)
+        for i, row in enumerate(rows):
+            r = f"{w}.entries[{i}]"
+            if not isinstance(row, dict) or not all(key in row for key in ("head", "command", "flow", "band")):
+                raise CivicError(f"{r}: expected an object with head, command, flow, band")
+            table[i, 0:2] = check_range(row["head"], f"{r}.head", 0, LEVEL_MAX)
+            table[i, 2:4] = check_range(row["command"], f"{r}.command", 0, LEVEL_MAX)
+            table[i, 4] = check_int(row["flow"], f"{r}.flow", -FLOW_MAX, FLOW_MAX)
+            table[i, 5] = check_int(row["band"], f"{r}.band", 0, LEVEL_MAX)
+        check_no_overlap(table, w)
+        terms.append(FlowTerm((head[0], head[1]), term["command"], table))
+    return terms
 
 
 def parse_compensation(raw, what: str, estimator: str, window: int):

@@ -78,7 +78,8 @@ def monitor_entries(mon: Monitor, estimator: str, rows=None, default_class=3, of
     offsets = np.zeros((0, 3), np.int64) if offsets is None else offsets
     return MonitorEntries(name=mon.name, signal=mon.signal, window=mon.window,
                           precondition=mon.precondition, compensate=mon.compensate if len(offsets) else None,
-                          estimator=estimator, default_class=default_class, classes=table, offsets=offsets)
+                          kind=mon.kind, hold=mon.hold, estimator="value" if mon.kind == "limit" else estimator,
+                          default_class=default_class, classes=table, offsets=offsets)
 
 
 def probe_entries(config: MonitorConfig, estimator: str) -> Entries:
@@ -299,24 +300,40 @@ def fit_monitor(mon: Monitor, runs: list[Run], estimator: str, banded: bool,
     return monitor_entries(mon, estimator, clf.rows_, ABOVE_NORMAL, offsets), clf
 
 
-def train(runs: list[Run], config: MonitorConfig, estimator: str, banded: bool, envelope=None) -> Entries:
-    """Class tables from the recordings' windows, with an envelope: compensated, over the envelope."""
-    for mon in config.monitors:
+def train(runs: list[Run], config: MonitorConfig, estimator: str, banded: bool, envelope=None,
+          model=None, progress=None) -> Entries:
+    """Class tables from the recordings' windows, with an envelope: compensated, over the envelope.
+
+    Balance monitors (docs/pipeline.md 3b) are trained on simulated closed-loop operation of the
+    plant model (the envelope's calibrated one, else `model`): civic.continuous."""
+    tested = [m for m in config.monitors if m.kind != "balance"]
+    for mon in tested:
         if not any(r.monitor == mon.name for r in runs):
             raise CivicError(f"labels have no recording for monitor {mon.name!r} (drop it from the monitors file)")
-    simulated = envelope_runs(envelope, config, estimator) if envelope is not None else []
-    monitors = [fit_monitor(mon, runs + simulated, estimator, banded, offsets_for(mon, estimator, envelope))[0]
-                for mon in config.monitors]
+    single = MonitorConfig(tested, config.udp_port, config.plant_prefix)
+    simulated = envelope_runs(envelope, single, estimator) if envelope is not None else []
+    fitted = {mon.name: fit_monitor(mon, runs + simulated, estimator, banded, offsets_for(mon, estimator, envelope))[0]
+              for mon in tested}
     training = {"estimator": estimator, "banded": banded, "runs": sorted({r.file for r in runs})}
+    balances = [m for m in config.monitors if m.kind == "balance"]
+    if balances:
+        from civic.continuous import CLOSED_LOOP_UNITS, CLOSED_LOOP_SEED, UNIT_SPREAD, closed_loop_runs, train_balance
+
+        plant = envelope.model_ if envelope is not None else model
+        if plant is None:
+            raise CivicError("balance monitors need a plant model to train on")
+        sims = closed_loop_runs(plant, CLOSED_LOOP_UNITS, UNIT_SPREAD, CLOSED_LOOP_SEED, progress=progress)
+        training["closed_loop"] = {"simulated_runs": len(sims), "unit_spread": UNIT_SPREAD, "monitors": {}}
+        for mon in balances:
+            fitted[mon.name], info = train_balance(mon, plant, sims)
+            training["closed_loop"]["monitors"][mon.name] = info
     if envelope is not None:
         training["calibrated"] = envelope.calibrated_
         training["envelope"] = {"start_levels_l": {k: list(map(float, v)) for k, v in envelope.start_levels.items()},
                                 "units_per_case": envelope.units, "unit_spread": envelope.spread,
                                 "simulated_runs": len(simulated)}
-    return Entries(monitors=monitors, udp_port=config.udp_port, plant_prefix=config.plant_prefix,
-                   training=training)
-
-
+    return Entries(monitors=[fitted[m.name] for m in config.monitors], udp_port=config.udp_port,
+                   plant_prefix=config.plant_prefix, training=training)
 
 
 def predict_run(entries: MonitorEntries, run: Run) -> np.ndarray:

@@ -60,7 +60,12 @@ def run(args) -> int:
         if args.calibrate:
             recorded = [] if args.from_model else load_recorded(folder, labels, config.udp_port, config.plant_prefix)
             envelope = Envelope(model).fit(recorded)
-    entries = train(runs, config, args.estimator, args.banded, envelope)
+    from civic.report import progress_bar
+
+    with progress_bar() as bar:
+        task = bar.add_task("simulating closed-loop operation", total=None)
+        entries = train(runs, config, args.estimator, args.banded, envelope, model=model,
+                        progress=lambda: bar.advance(task))
     if args.from_model:
         entries.training["source"] = f"model {args.model or default_model_path()}"
     entries.save(args.output)

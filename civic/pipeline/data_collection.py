@@ -1,4 +1,8 @@
-"""Twin of the registers in control/monitor.p4: ring buffer, pointer, run counter, running sums."""
+"""Twin of the registers in control/monitor.p4: ring buffer, pointer, run counter, running sums.
+
+The ring holds 32-bit values (the level, or a balance monitor's level minus its accumulated
+expected inflow); every sum is taken modulo 2^32, as the switch's bit<32> registers do.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -28,7 +32,7 @@ class RingState:
 
     def __init__(self, plants: int, ring_len: int):
         self.ring_len = ring_len
-        self.ring = np.zeros((plants, ring_len), dtype=np.uint16)
+        self.ring = np.zeros((plants, ring_len), dtype=np.int64)
         self.ptr = np.zeros(plants, dtype=np.int64)
         self.run = np.zeros(plants, dtype=np.int64)
         self.s0 = np.zeros(plants, dtype=np.int64)
@@ -38,7 +42,7 @@ class RingState:
         """Write x at the pointer, update the sums (32-bit modular); return the value it replaced."""
         p = self.ptr[slot]
         old = int(self.ring[slot, p])
-        self.ring[slot, p] = x
+        self.ring[slot, p] = x & U32
         self.ptr[slot] = 0 if p + 1 == self.ring_len else p + 1
         s0 = int(self.s0[slot])
         self.s1[slot] = (int(self.s1[slot]) + s0 - self.ring_len * old) & U32
@@ -47,14 +51,19 @@ class RingState:
 
 
 def window_sums(x: np.ndarray, ring_len: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(old, s0, s1) after each push of x into an empty ring (vectorized, exact int64)."""
-    x = np.asarray(x, dtype=np.int64)
+    """(old, s0, s1) after each push of x into an empty ring (vectorized), modulo 2^32.
+
+    Prefix sums in uint64 wrap modulo 2^64, a multiple of 2^32, so the results are exact mod 2^32.
+    """
+    x = np.asarray(x, dtype=np.int64).astype(np.uint64) & np.uint64(U32)
     n = len(x)
-    pad = np.concatenate((np.zeros(ring_len, np.int64), x))
-    c = np.concatenate(([0], np.cumsum(pad)))
-    d = np.concatenate(([0], np.cumsum(pad * np.arange(len(pad)))))
+    pad = np.concatenate((np.zeros(ring_len, np.uint64), x))
+    c = np.concatenate((np.zeros(1, np.uint64), np.cumsum(pad, dtype=np.uint64)))
+    d = np.concatenate((np.zeros(1, np.uint64), np.cumsum(pad * np.arange(len(pad), dtype=np.uint64),
+                                                          dtype=np.uint64)))
     i = np.arange(n) + ring_len            # position of x[k] in pad
     s0 = c[i + 1] - c[i + 1 - ring_len]
-    s1 = i * s0 - (d[i + 1] - d[i + 1 - ring_len])
+    s1 = i.astype(np.uint64) * s0 - (d[i + 1] - d[i + 1 - ring_len])
     old = pad[i - ring_len]
-    return old, s0, s1
+    m = np.uint64(U32)
+    return (old & m).astype(np.int64), (s0 & m).astype(np.int64), (s1 & m).astype(np.int64)

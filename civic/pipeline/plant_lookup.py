@@ -10,6 +10,8 @@ import numpy as np
 
 MAX_PLANTS = 256
 SEQ_MASK = 0xFFFFFFFF
+COMMANDS = ("p1", "v1", "v2")
+STEPS = ("dp1", "dv1", "dv2")             # |command - the plant's previous command|
 
 
 def plant_slot(src):
@@ -27,3 +29,17 @@ def seq_gaps(seq: np.ndarray) -> np.ndarray:
     seq = np.asarray(seq, dtype=np.uint64)
     prev = np.concatenate((np.zeros(1, np.uint64), seq[:-1]))
     return seq != ((prev + np.uint64(1)) & np.uint64(SEQ_MASK))
+
+
+def command_steps(fields: dict, last: dict) -> dict:
+    """Steps of one message's commands from the plant's previous ones (`last`, 0 at first)."""
+    return {d: abs(int(fields[c]) - int(last[c])) for c, d in zip(COMMANDS, STEPS)}
+
+
+def command_steps_stream(fields: dict) -> dict:
+    """command_steps over one plant's message stream, starting from last = 0 (vectorized)."""
+    out = {}
+    for c, d in zip(COMMANDS, STEPS):
+        v = np.asarray(fields[c], np.int64)
+        out[d] = np.abs(np.diff(v, prepend=np.int64(0)))
+    return out

@@ -1,4 +1,4 @@
-"""Twin of control/slope.p4: the two slope estimators, integer only, no division."""
+"""Twin of control/slope.p4: the slope estimators (and a limit monitor's value), integer only."""
 from __future__ import annotations
 
 import numpy as np
@@ -20,3 +20,17 @@ def endpoint(x, old):
 def lsq(s0, s1, window: int):
     """Twice the least-squares numerator: (W-1)*s0 - 2*s1 (docs/pipeline.md section 3)."""
     return to_int32((window - 1) * np.asarray(s0, np.int64) - 2 * np.asarray(s1, np.int64))
+
+
+def value(x):
+    """A limit monitor's 'slope': the value itself (the value estimator)."""
+    return to_int32(x)
+
+
+def estimate(estimator: str, x, old, s0, s1, window: int):
+    """The estimator named in the monitor's entries."""
+    if estimator == "lsq":
+        return lsq(s0, s1, window)
+    if estimator == "endpoint":
+        return endpoint(x, old)
+    return value(x)

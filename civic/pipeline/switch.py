@@ -1,4 +1,4 @@
-"""The whole switch: plant lookup -> data collection -> slope -> classification -> notify -> verdict.
+"""The whole switch: plant lookup -> balance -> data collection -> slope -> classification -> notify -> verdict.
 
 `SwitchModel.step` is the plain per-message model (state kept between calls,
 exactly the P4 registers and counters; verdict changes collected in
@@ -11,8 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from civic.config import PRECONDITION_FIELDS
 from civic.entries import Entries, MonitorEntries
-from civic.pipeline import classification, data_collection, notify, plant_lookup, slope
+from civic.pipeline import balance, classification, data_collection, notify, plant_lookup, slope
 from civic.pipeline.verdict import verdict_bits
 from civic.wire import SIGNALS
 
@@ -23,11 +24,13 @@ class MonitorTrace:
 
     monitor: MonitorEntries
     run: np.ndarray       # qualifying-run counter after the message
-    slope: np.ndarray     # raw estimator value (signed)
+    slope: np.ndarray     # raw estimator value (signed; a balance monitor's residual)
     level: np.ndarray     # the monitored signal's current value
     aux: np.ndarray       # compensate table key
     offset: np.ndarray    # compensate table result (the expected inflow, raw units)
-    code: np.ndarray      # 0 not evaluated, 1..3 class
+    band: np.ndarray      # class table's second key: the level, or a balance monitor's band
+    raw: np.ndarray       # class table result (0 where not evaluated)
+    code: np.ndarray      # the verdict: 0 not evaluated (or not held yet), 1..3 class
 
     @property
     def evaluated(self) -> np.ndarray:
@@ -50,6 +53,11 @@ class SwitchModel:
     def reset(self) -> None:
         """Zero every register, as a freshly started switch."""
         self.last_seq = np.zeros(self.plants, dtype=np.int64)
+        self.last_cmd = {c: np.zeros(self.plants, dtype=np.int64) for c in plant_lookup.COMMANDS}
+        n = len(self.entries.monitors)
+        self.acc = np.zeros((n, self.plants), dtype=np.int64)
+        self.cand = np.zeros((n, self.plants), dtype=np.int64)
+        self.hold = np.zeros((n, self.plants), dtype=np.int64)
         self.rings = [data_collection.RingState(self.plants, m.ring_len) for m in self.entries.monitors]
         n = len(self.entries.monitors)
         self.last_class = np.zeros((n, self.plants), dtype=np.int64)
@@ -61,22 +69,32 @@ class SwitchModel:
         slot = int(plant_lookup.plant_slot(src))
         gap = plant_lookup.seq_gap(seq, int(self.last_seq[slot]))
         self.last_seq[slot] = seq
+        fields = {**fields, **plant_lookup.command_steps(fields, {c: v[slot] for c, v in self.last_cmd.items()})}
+        for c in plant_lookup.COMMANDS:
+            self.last_cmd[c][slot] = fields[c]
         verdict = 0
         for m, (mon, ring) in enumerate(zip(self.entries.monitors, self.rings)):
-            q = all(lo <= fields[name] <= hi for name, (lo, hi) in zip(SIGNALS, mon.ranges()))
+            q = all(lo <= fields[name] <= hi for name, (lo, hi) in zip(PRECONDITION_FIELDS, mon.ranges()))
             ring.run[slot] = data_collection.next_run(int(ring.run[slot]), q, gap)
             x = fields[mon.signal]
-            old = ring.push(slot, x)
-            if mon.estimator == "lsq":
-                s = int(slope.lsq(ring.s0[slot], ring.s1[slot], mon.window))
-            else:
-                s = int(slope.endpoint(x, old))
+            key2 = x
+            z = x
+            if mon.kind == "balance":                 # balance: expected flows, accumulator
+                e, band = balance.expected(fields, mon.terms)
+                self.acc[m, slot] = (int(self.acc[m, slot]) + int(e)) & data_collection.U32
+                z = int(balance.pushed(x, self.acc[m, slot]))
+                key2 = int(band)
+            old = ring.push(slot, z)
+            s = int(slope.estimate(mon.estimator, z, old, ring.s0[slot], ring.s1[slot], mon.window))
             a = classification.aux(fields, *mon.aux_signals)
             resid = int(slope.to_int32(s - int(classification.compensate(a, mon.offsets))))
-            code = 0
+            c_raw = 0
             if ring.run[slot] >= mon.window:
-                code = int(classification.classify(np.array([resid]), np.array([x]), mon.classes,
-                                                   mon.default_class)[0])
+                c_raw = int(classification.classify(np.array([resid]), np.array([key2]), mon.classes,
+                                                    mon.default_class)[0])
+            self.cand[m, slot], self.hold[m, slot] = classification.next_hold(
+                int(self.cand[m, slot]), int(self.hold[m, slot]), c_raw)
+            code = int(classification.held(c_raw, self.hold[m, slot], mon.hold))
             if code:                                  # notify: counters, last_class, changes
                 self.counts[m, slot, code] += 1
                 prev = int(self.last_class[m, slot])
@@ -111,24 +129,41 @@ class SwitchModel:
         seq = msgs["seq"][order]
         gap = np.concatenate([plant_lookup.seq_gaps(seq[s]) for s in spans]) if spans else np.zeros(0, bool)
         fields = {k: msgs[k].astype(np.int64)[order] for k in SIGNALS}
+        fields.update({d: np.zeros(len(order), np.int64) for d in plant_lookup.STEPS})
+        for sp in spans:
+            for d, v in plant_lookup.command_steps_stream({c: fields[c][sp] for c in plant_lookup.COMMANDS}).items():
+                fields[d][sp] = v
         traces = []
         for mon in self.entries.monitors:
             q = classification.qualified(fields, mon.ranges())
             x = fields[mon.signal]
+            z, key2 = x, x
+            if mon.kind == "balance":
+                e, key2 = balance.expected(fields, mon.terms)
+                z = np.zeros(len(order), dtype=np.int64)
+                for sp in spans:
+                    z[sp] = balance.pushed(x[sp], balance.accumulate(e[sp]))
             run = np.zeros(len(order), dtype=np.int64)
             s = np.zeros(len(order), dtype=np.int64)
             for sp in spans:
                 run[sp] = data_collection.runs(q[sp], gap[sp])
-                old, s0, s1 = data_collection.window_sums(x[sp], mon.ring_len)
-                s[sp] = slope.lsq(s0, s1, mon.window) if mon.estimator == "lsq" else slope.endpoint(x[sp], old)
+                old, s0, s1 = data_collection.window_sums(z[sp], mon.ring_len)
+                s[sp] = slope.estimate(mon.estimator, z[sp], old, s0, s1, mon.window)
             a = classification.aux(fields, *mon.aux_signals)
             off = classification.compensate(a, mon.offsets)
-            code = np.zeros(len(order), dtype=np.int64)
+            raw = np.zeros(len(order), dtype=np.int64)
             ev = run >= mon.window
-            code[ev] = classification.classify(slope.to_int32(s[ev] - off[ev]), x[ev], mon.classes,
-                                               mon.default_class)
+            raw[ev] = classification.classify(slope.to_int32(s[ev] - off[ev]), key2[ev], mon.classes,
+                                              mon.default_class)
+            code = raw
+            if mon.hold > 1:
+                hold = np.zeros(len(order), dtype=np.int64)
+                for sp in spans:
+                    hold[sp] = classification.holds(raw[sp])
+                code = classification.held(raw, hold, mon.hold)
             traces.append(MonitorTrace(monitor=mon, run=run[unsort], slope=s[unsort], level=x[unsort],
-                                       aux=a[unsort], offset=off[unsort], code=code[unsort]))
+                                       aux=a[unsort], offset=off[unsort], band=key2[unsort], raw=raw[unsort],
+                                       code=code[unsort]))
         return idx, traces
 
     def verdict_changes(self, messages: np.ndarray) -> list[notify.Change]:

@@ -380,12 +380,15 @@ class Stepper:
 
 def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc", seed=None,
                     noise: bool = True, schedule=None, x0=None, progress=None,
-                    controller_model: PlantModel | None = None) -> ClosedLoopResult:
+                    controller_model: PlantModel | None = None,
+                    onset: tuple[float, PlantModel] | None = None) -> ClosedLoopResult:
     """Simulate the plant under MPC/PI with the supervisor's setpoints and tests.
 
     `model` is the simulated plant (it may carry faults: leaks, offsets...);
     the controller is designed on `controller_model` (default: the same model),
     so a concealed fault is simulated by passing the nominal model here.
+    `onset` = (t, faulted): from time t on the plant runs with `faulted`'s
+    coefficients (same structure, e.g. a manual valve closed mid-run).
     """
     import time as _time
 
@@ -419,6 +422,10 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     u_full[iin] = us
     ctrl.reset_actuators(us)
     stepper = Stepper(model, x0v, u_full)
+    k_onset, P_onset = n, None
+    if onset is not None:
+        k_onset = int(round(onset[0] / dt))
+        P_onset = stepper.cm.params_for(onset[1]).tolist()
     ns = len(model.state_names)
     X = np.empty((n, ns))
     Ucmd = np.zeros((n, len(model.inputs)))
@@ -437,6 +444,8 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     last_u = np.asarray(us, float)
     for k in range(n):
         t = k * dt
+        if k == k_onset:
+            stepper.P = P_onset
         X[k] = x
         # measurement as the controller sees it (wire resolution)
         if qsens is not None:

@@ -47,7 +47,9 @@ from finsy.proto import rpc_status as status_pb2
 
 from civic.entries import Entries, load_entries
 from civic.errors import CivicError
-from civic.wire import SIGNALS, parse_prefix
+from civic.config import PRECONDITION_FIELDS
+from civic.entries import OPERANDS
+from civic.wire import parse_prefix
 
 # ---------------------------------------------------------------- P4 object names (fixed contract)
 CONTROL = "CivicIngress"
@@ -58,10 +60,13 @@ ACTION_SET_EGRESS = f"{CONTROL}.set_egress"
 ACTION_SET_MONITORED = f"{CONTROL}.set_monitored"
 ACTION_SET_PLANT = f"{CONTROL}.set_plant"
 REGISTER_LAST_SEQ = f"{CONTROL}.last_seq"
-MONITOR_REGISTERS = ("ring", "ptr", "run", "s0", "s1", "last_class")
+MONITOR_REGISTERS = ("ring", "ptr", "run", "s0", "s1", "last_class", "acc", "cand", "hold")
 COUNTER_VERDICTS = "verdicts"       # monK.verdicts: packets per cell slot * 4 + class
 DIGEST_VERDICT_CHANGE = "verdict_change_t"   # one per message on which a verdict changes
 SIGNAL_CODES = {"l1": 0, "l2": 1, "l3": 2, "l4": 3}
+ESTIMATOR_CODES = {"endpoint": 0, "lsq": 1, "value": 2}
+OPERAND_CODES = {name: i for i, name in enumerate(OPERANDS)}       # define.p4 OPERAND_*
+FLOW_TABLES = ("flow0", "flow1")
 SLOPE_BIAS = 0x80000000
 PRIORITY_BASE = 0xFFFF       # entry i of a range table gets priority PRIORITY_BASE - i
 MAX_PLANTS = 256
@@ -199,6 +204,7 @@ class P4Schema:
         names = [TABLE_FORWARD, TABLE_MONITORED_PORT, TABLE_PLANT_PREFIX]
         for k in range(self.monitor_slots()):
             names += [mon(k, "config"), mon(k, "precondition"), mon(k, "compensate"), mon(k, "classify")]
+            names += [mon(k, t) for t in FLOW_TABLES if mon(k, t) in self.tables]
         return names
 
     def default_tables(self) -> list[str]:
@@ -331,6 +337,10 @@ class DesiredState:
     defaults: list           # TableEntry with is_default_action
 
 
+DISABLED = dict(enabled=0, signal=0, window=0, ring_len=0, estimator=0, balance=0, hold_min=0, aux_plus=0,
+                aux_minus=0, f0_plus=0, f0_minus=0, f0_cmd=0, f1_plus=0, f1_minus=0, f1_cmd=0)
+
+
 def desired_state(entries: Entries, schema: P4Schema) -> DesiredState:
     """Every table entry and default action the entries file asks for; validates against the P4Info."""
     slots = schema.monitor_slots()
@@ -355,8 +365,7 @@ def desired_state(entries: Entries, schema: P4Schema) -> DesiredState:
     for k in range(slots):
         cfg, pre, comp, cls = (schema.table(mon(k, t)) for t in ("config", "precondition", "compensate", "classify"))
         if k >= len(entries.monitors):
-            out.defaults.append(_entry(cfg, [], _action(schema, cfg, mon(k, "set_config"), enabled=0, signal=0,
-                                                        window=0, ring_len=0, lsq=0, aux_plus=0, aux_minus=0),
+            out.defaults.append(_entry(cfg, [], _action(schema, cfg, mon(k, "set_config"), **DISABLED),
                                        default=True))
             out.defaults.append(_entry(cls, [], _action(schema, cls, mon(k, "set_class"), cls=3), default=True))
             continue
@@ -366,11 +375,25 @@ def desired_state(entries: Entries, schema: P4Schema) -> DesiredState:
             raise CivicError(f"{what}: ring length {m.ring_len} exceeds the pipeline's {stride} cells per plant")
         if m.signal not in SIGNAL_CODES:
             raise CivicError(f"{what}: signal {m.signal!r} cannot be monitored (one of l1..l4)")
+        terms = {f"f{t}_{part}": 0 for t in range(len(FLOW_TABLES)) for part in ("plus", "minus", "cmd")}
+        for t, term in enumerate(m.terms):
+            terms.update({f"f{t}_plus": OPERAND_CODES[term.head[0]], f"f{t}_minus": OPERAND_CODES[term.head[1]],
+                          f"f{t}_cmd": OPERAND_CODES[term.command]})
         out.defaults.append(_entry(cfg, [], _action(
             schema, cfg, mon(k, "set_config"), enabled=1, signal=SIGNAL_CODES[m.signal], window=m.window,
-            ring_len=m.ring_len, lsq=int(m.estimator == "lsq"), aux_plus=SIGNAL_CODES[m.aux_signals[0]],
-            aux_minus=SIGNAL_CODES[m.aux_signals[1]]), default=True))
-        ranges = dict(zip(SIGNALS, m.ranges()))
+            ring_len=m.ring_len, estimator=ESTIMATOR_CODES[m.estimator], balance=int(m.kind == "balance"),
+            hold_min=m.hold, aux_plus=SIGNAL_CODES[m.aux_signals[0]],
+            aux_minus=SIGNAL_CODES[m.aux_signals[1]], **terms), default=True))
+        for t, term in enumerate(m.terms):
+            ft = schema.table(mon(k, FLOW_TABLES[t]))
+            if len(term.rows) >= PRIORITY_BASE:
+                raise CivicError(f"{what}: {len(term.rows)} flow entries, at most {PRIORITY_BASE - 1}")
+            for i, (hlo, hhi, clo, chi, flow, band) in enumerate(term.rows.tolist()):
+                out.entries.append(_entry(ft, [_range(ft, "head", hlo, hhi), _range(ft, "cmd", clo, chi)],
+                                          _action(schema, ft, mon(k, f"set_{FLOW_TABLES[t]}"),
+                                                  flow=flow & 0xFFFFFFFF, band=band),
+                                          priority=PRIORITY_BASE - i))
+        ranges = dict(zip(PRECONDITION_FIELDS, m.ranges()))
         out.entries.append(_entry(pre, [_range(pre, f, lo, hi) for f, (lo, hi) in ranges.items()],
                                   _action(schema, pre, mon(k, "qualify")), priority=PRIORITY_BASE))
         for i, (lo, hi, off) in enumerate(m.offsets.tolist()):

@@ -20,6 +20,7 @@ import grpc
 import pytest
 from google.protobuf import any_pb2, text_format
 
+from civic.config import PRECONDITION_FIELDS
 from civic import p4runtime as p4rt
 from civic.p4runtime import code_pb2, p4info_pb2, p4runtime_pb2, p4runtime_pb2_grpc, status_pb2
 from civic.cli import main
@@ -416,10 +417,11 @@ def test_entries_to_protos_encoding():
     defaults = {sch.table_by_id[te.table_id].name: te for te in want.defaults}
     assert all(te.is_default_action and not te.match for te in defaults.values())
     cfg = lambda k: [int.from_bytes(v, "big") for _, v in params(defaults[f"CivicIngress.mon{k}.config"])]
-    # enabled, signal l3, window, ring_len = W (lsq), lsq, aux_plus = aux_minus (uncompensated: aux = 0)
-    assert cfg(0) == [1, 2, 20, 20, 1, 2, 2]
-    assert cfg(1) == [1, 0, 9, 8, 0, 0, 0]        # endpoint: ring_len = W - 1
-    assert cfg(2) == cfg(3) == [0] * 7
+    # enabled, signal l3, window, ring_len = W (lsq), estimator lsq, not balance, hold 1,
+    # aux_plus = aux_minus (uncompensated: aux = 0), no flow terms
+    assert cfg(0) == [1, 2, 20, 20, 1, 0, 1, 2, 2] + [0] * 6
+    assert cfg(1) == [1, 0, 9, 8, 0, 0, 1, 0, 0] + [0] * 6        # endpoint: ring_len = W - 1
+    assert cfg(2) == cfg(3) == [0] * 15
     assert params(defaults["CivicIngress.mon0.classify"]) == [(1, b"\x03")]
     assert params(defaults["CivicIngress.mon1.classify"]) == [(1, b"\x02")]
 
@@ -440,7 +442,7 @@ def test_compensation_entries_and_config():
     assert "offset=-57" in sch.describe(comp[2])
     defaults = {sch.table_by_id[te.table_id].name: te for te in want.defaults}
     cfg = [int.from_bytes(v, "big") for _, v in params(defaults["CivicIngress.mon0.config"])]
-    assert cfg[-2:] == [1, 2]                      # aux = l2 - l3
+    assert cfg[7:9] == [1, 2]                      # aux = l2 - l3
 
 
 @pytest.mark.parametrize("change, message", [
@@ -467,7 +469,7 @@ def test_precondition_ranges_and_forwarding_override():
     sch = schema()
     want = p4rt.desired_state(parse_entries(raw, "t"), sch)
     pre = [te for te in want.entries if sch.table_by_id[te.table_id].name == "CivicIngress.mon0.precondition"][0]
-    got = {n: (fm.range.low, fm.range.high) for n in p4rt.SIGNALS for fm in [field(pre, sch, n)] if fm is not None}
+    got = {n: (fm.range.low, fm.range.high) for n in PRECONDITION_FIELDS for fm in [field(pre, sch, n)] if fm is not None}
     assert got == {"l3": (b"\x0b\xb9", b"\xff\xff"), "v2": (b"\x03\x20", b"\xff\xff")}
     pre1 = [te for te in want.entries if sch.table_by_id[te.table_id].name == "CivicIngress.mon1.precondition"][0]
     assert (field(pre1, sch, "l1").range.low, field(pre1, sch, "l1").range.high) == (b"\x13\x89", b"\x1f\x3f")
@@ -610,7 +612,7 @@ def test_window_exceeding_ring_capacity_is_rejected_locally(servicer, tmp_path):
 
 @pytest.mark.parametrize("mutate, message", [
     (lambda r: r["monitors"][0]["precondition"].update(p9=[0, 1]), "precondition.p9: unknown field"),
-    (lambda r: r["monitors"][0]["classes"][0].update(slope=[-2**31, -20000]), "class entries 0 and 1 overlap"),
+    (lambda r: r["monitors"][0]["classes"][0].update(slope=[-2**31, -20000]), "entries 0 and 1 overlap"),
     (lambda r: r.update(udp_port=70000), "udp_port: 70000 is outside 1..65535"),
 ])
 def test_cli_bad_entries_one_line_exit_2(servicer, tmp_path, capsys, mutate, message):
@@ -810,7 +812,9 @@ def test_configures_what_civic_train_writes(servicer, tmp_path, capsys, trained_
     assert res.writes == 0 and len(servicer.writes) == writes
     n_offsets = sum(len(m.offsets) for m in entries.monitors)
     assert n_offsets > 0                                        # the default compensates drain_t3
-    assert res.unchanged == sum(n_classes) + n_offsets + len(entries.monitors) + 4 + 8
+    n_flows = sum(len(t.rows) for m in entries.monitors for t in m.terms)
+    assert n_flows > 0                                          # the balance monitors' flow terms
+    assert res.unchanged == sum(n_classes) + n_offsets + n_flows + len(entries.monitors) + 4 + 8
 
 
 def test_padded_byte_strings_for_old_servers(servicer, tmp_path, capsys):

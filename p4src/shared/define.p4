@@ -49,6 +49,24 @@
 #define SIGNAL_L2 1
 #define SIGNAL_L3 2
 #define SIGNAL_L4 3
+// Estimator codes of set_config(estimator) (pipeline.md section 3).
+#define ESTIMATOR_ENDPOINT 0
+#define ESTIMATOR_LSQ 1
+#define ESTIMATOR_VALUE 2
+// Operand codes of a balance monitor's flow terms (pipeline.md 3b):
+// l1..l4, the commands p1, v1, v2, and the constant 0.
+#define OPERAND_L1 0
+#define OPERAND_L2 1
+#define OPERAND_L3 2
+#define OPERAND_L4 3
+#define OPERAND_P1 4
+#define OPERAND_V1 5
+#define OPERAND_V2 6
+#define OPERAND_ZERO 7
+// Balance monitors push (x << BALANCE_SHIFT) - acc: sixteenths of a mL.
+#define BALANCE_SHIFT 4
+// hold saturates at 255 (8-bit register).
+#define HOLD_MAX 255
 
 /* ---------------------------------------------------------------- classes */
 // section 4 / wire-format.md "Verdict field".
@@ -72,6 +90,9 @@
 #define PRECONDITION_TABLE_SIZE 64
 #define CLASSIFY_TABLE_SIZE 1024
 #define COMPENSATE_TABLE_SIZE 256
+// A balance monitor's flow term: a 2-D range table on (head, command),
+// e.g. V2's outflow over L3 x V2 within +-3 % per cell (civic train).
+#define FLOW_TABLE_SIZE 8192
 
 /* ---------------------------------------------------------------- verdict changes */
 // pipeline.md section 7: per monitor, a packet counter per (slot, class),

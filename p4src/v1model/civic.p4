@@ -24,11 +24,12 @@
  *   CivicIngress.forward, .set_egress, .drop
  *   CivicIngress.monitored_port, .set_monitored
  *   CivicIngress.plant_prefix, .set_plant
- *   CivicIngress.last_seq
+ *   CivicIngress.last_seq, .last_p1, .last_v1, .last_v2
  *   CivicIngress.monK.{config, set_config, precondition, qualify,
- *                      disqualify, compensate, set_offset, classify,
- *                      set_class,
- *                      ring, ptr, run, s0, s1, last_class,
+ *                      disqualify, compensate, set_offset, flow0,
+ *                      set_flow0, flow1, set_flow1, classify, set_class,
+ *                      ring, ptr, run, s0, s1, last_class, acc, cand,
+ *                      hold,
  *                      verdicts (counter)}                  K = 0..3
  *   digest verdict_change_t
  */
@@ -83,10 +84,10 @@ control CivicIngress(inout headers_t hdr,
             plant_lookup.apply(hdr, meta);
         }
         if (meta.plant == 1) {
-            mon0.apply(hdr.plant, meta.slot, meta.gap, meta.mon0);
-            mon1.apply(hdr.plant, meta.slot, meta.gap, meta.mon1);
-            mon2.apply(hdr.plant, meta.slot, meta.gap, meta.mon2);
-            mon3.apply(hdr.plant, meta.slot, meta.gap, meta.mon3);
+            mon0.apply(hdr.plant, meta.slot, meta.gap, meta.dp1, meta.dv1, meta.dv2, meta.mon0);
+            mon1.apply(hdr.plant, meta.slot, meta.gap, meta.dp1, meta.dv1, meta.dv2, meta.mon1);
+            mon2.apply(hdr.plant, meta.slot, meta.gap, meta.dp1, meta.dv1, meta.dv2, meta.mon2);
+            mon3.apply(hdr.plant, meta.slot, meta.gap, meta.dp1, meta.dv1, meta.dv2, meta.mon3);
             notify.apply(hdr, meta);
             verdict.apply(hdr, meta);
         }

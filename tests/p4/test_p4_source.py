@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from civic import p4runtime, wire
+from civic.config import PRECONDITION_FIELDS
 from civic.pipeline import data_collection
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -176,11 +177,13 @@ def test_v1model_control_plane_names():
     want = {p4runtime.TABLE_FORWARD: "table", p4runtime.TABLE_MONITORED_PORT: "table",
             p4runtime.TABLE_PLANT_PREFIX: "table", p4runtime.ACTION_SET_EGRESS: "action",
             p4runtime.ACTION_SET_MONITORED: "action", p4runtime.ACTION_SET_PLANT: "action",
-            p4runtime.REGISTER_LAST_SEQ: "register", "CivicIngress.drop": "action"}
+            p4runtime.REGISTER_LAST_SEQ: "register", "CivicIngress.drop": "action",
+            "CivicIngress.last_p1": "register", "CivicIngress.last_v1": "register",
+            "CivicIngress.last_v2": "register"}
     for k in range(MONITOR_SLOTS_V1):
-        for t in ("config", "precondition", "compensate", "classify"):
+        for t in ("config", "precondition", "compensate", "classify") + p4runtime.FLOW_TABLES:
             want[p4runtime.mon(k, t)] = "table"
-        for a in ("set_config", "qualify", "disqualify", "set_offset", "set_class"):
+        for a in ("set_config", "qualify", "disqualify", "set_offset", "set_class", "set_flow0", "set_flow1"):
             want[p4runtime.mon(k, a)] = "action"
         for r in p4runtime.MONITOR_REGISTERS:
             want[p4runtime.mon(k, r)] = "register"
@@ -211,17 +214,26 @@ def test_tna_derived_names():
              for name, kind in (("precondition_cmd", "table"), ("qualify_cmd", "action"), ("disqualify_cmd", "action"),
                                 # one classify action per class: each runs its own last_class RegisterAction
                                 ("set_normal", "action"), ("set_warning", "action"), ("set_error", "action"))}
-    assert names == {k: v for k, v in v1.items() if not re.match(rf"CivicIngress\.mon([{n}-9])\.", k)} | split
+    # the balance monitors' objects (command steps, flow terms, accumulator, hold) are v1model's
+    # alone: the TNA default profile runs the two test monitors (p4src/README.md)
+    balance = re.compile(r"CivicIngress\.(last_[pv]\d|mon\d\.(flow\d|set_flow\d|acc|cand|hold))$")
+    assert names == {k: v for k, v in v1.items()
+                     if not re.match(rf"CivicIngress\.mon([{n}-9])\.", k) and not balance.match(k)} | split
 
 
 def test_v1model_key_and_parameter_names():
     src = source(V1 / "civic.p4")
     for key, kind in [("ingress_port", "exact"), ("dst_port", "exact"), ("src_addr", "lpm"),
-                      ("slope_key", "range"), ("level", "range"), ("aux", "range")] + [(s, "range") for s in wire.SIGNALS]:
+                      ("slope_key", "range"), ("level", "range"), ("aux", "range"), ("head", "range"),
+                      ("cmd", "range")] + [(s, "range") for s in PRECONDITION_FIELDS]:
         assert re.search(rf':\s*{kind}\s+@name\("{key}"\)', src), key
-    assert re.search(r"action\s+set_config\s*\(\s*bit<1>\s+enabled\s*,\s*bit<2>\s+signal\s*,\s*bit<8>\s+window\s*,"
-                     r"\s*bit<8>\s+ring_len\s*,\s*bit<1>\s+lsq\s*,\s*bit<2>\s+aux_plus\s*,"
-                     r"\s*bit<2>\s+aux_minus\s*\)", src)
+    params = [(int(w), n) for w, n in re.findall(r"bit<(\d+)>\s+(\w+)",
+                                                 re.search(r"action\s+set_config\s*\(([^)]*)\)", src).group(1))]
+    assert [n for _, n in params] == list(p4runtime.DISABLED)
+    assert params[:9] == [(1, "enabled"), (2, "signal"), (8, "window"), (8, "ring_len"), (2, "estimator"),
+                          (1, "balance"), (8, "hold_min"), (2, "aux_plus"), (2, "aux_minus")]
+    assert all(w == 3 for w, _ in params[9:])            # operand codes l1..l4, p1, v1, v2, zero
+    assert re.search(r"action\s+set_flow0\s*\(\s*bit<32>\s+flow\s*,\s*bit<16>\s+band\s*\)", src)
     assert re.search(r"action\s+set_offset\s*\(\s*bit<32>\s+offset\s*\)", src)
     assert re.search(r"action\s+set_class\s*\(\s*bit<2>\s+cls\s*\)", src)
     assert re.search(r"action\s+set_egress\s*\(\s*bit<9>\s+port\s*\)", src)
@@ -231,7 +243,8 @@ def test_v1model_key_and_parameter_names():
 def test_register_sizes_and_widths():
     d = defines()
     src = source(V1 / "civic.p4")
-    widths = {"ring": 16, "ptr": 8, "run": 8, "s0": 32, "s1": 32, "last_seq": 32}
+    widths = {"ring": 32, "ptr": 8, "run": 8, "s0": 32, "s1": 32, "last_seq": 32, "acc": 32, "cand": 2,
+              "hold": 8, "last_p1": 16}
     for reg, w in widths.items():
         m = re.search(rf"register<bit<(\d+)>>\((\w+)\)\s+{reg}\s*;", src)
         assert m, reg
@@ -471,7 +484,7 @@ def test_tna_names():
         assert f'@name(".{full}")' in src, full
     for k in range(tna_config()["TNA_MONITORS"]):
         assert re.search(rf"\bMonitor\s*\([^;]*\)\s+mon{k}\s*;", src), k
-    for reg in p4runtime.MONITOR_REGISTERS:
+    for reg in ("ring", "ptr", "run", "s0", "s1", "last_class"):       # no balance monitors on TNA's default
         assert re.search(rf"Register<bit<\d+>,\s*bit<\d+>>\([A-Z_]+(,\s*0)?\)\s+{reg}\s*;", src), reg
     for obj in ("table config", "action set_config", "table precondition", "action qualify",
                 "table classify", "action set_class"):
@@ -489,11 +502,15 @@ def p4_types(src: str) -> dict[str, dict[str, str]]:
     out = {}
     for m in re.finditer(r"\b(?:struct|header)\s+(\w+)\s*\{([^}]*)\}", src):
         out[m.group(1)] = dict((f, t) for t, f in re.findall(r"(bit<\d+>|\w+)\s+(\w+)\s*;", m.group(2)))
+    out["__params__"] = {f: t for sig in re.findall(r"\bcontrol\s+\w+\s*\(([^)]*)\)", src)
+                         for t, f in re.findall(r"\bin\s+(bit<\d+>)\s+(\w+)", sig)}
     return out
 
 
 def key_width(expr: str, types: dict) -> int:
     parts = expr.split(".")
+    if len(parts) == 1:                        # a control's parameter, e.g. Monitor's `in bit<16> dp1`
+        return int(types["__params__"][expr][4:-1])
     if parts[0] == "standard_metadata":
         return V1MODEL_STANDARD_METADATA[parts[1]]
     typ = V1_FIELD_ROOTS[parts[0]]

@@ -56,14 +56,18 @@
 #define _CIVIC_V1MODEL_MONITOR_P4_
 
 control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
+                in bit<16> dp1, in bit<16> dv1, in bit<16> dv2,
                 inout monitor_md_t m) {
 
-    register<bit<16>>(RING_CELLS) ring;
+    register<bit<32>>(RING_CELLS) ring;
     register<bit<8>>(MAX_PLANTS) ptr;
     register<bit<8>>(MAX_PLANTS) run;
     register<bit<32>>(MAX_PLANTS) s0;
     register<bit<32>>(MAX_PLANTS) s1;
     register<bit<2>>(MAX_PLANTS) last_class;
+    register<bit<32>>(MAX_PLANTS) acc;      // balance: accumulated expected inflow
+    register<bit<2>>(MAX_PLANTS) cand;      // hold: the table's last result ...
+    register<bit<8>>(MAX_PLANTS) hold;      // ... and for how many messages
     counter(VERDICT_COUNTER_CELLS, CounterType.packets) verdicts;
 
     SignalSelect() signal_select;
@@ -71,22 +75,32 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
 
     // ------------------------------------------------------------ config
     action set_config(bit<1> enabled, bit<2> signal, bit<8> window,
-                      bit<8> ring_len, bit<1> lsq, bit<2> aux_plus,
-                      bit<2> aux_minus) {
+                      bit<8> ring_len, bit<2> estimator, bit<1> balance,
+                      bit<8> hold_min, bit<2> aux_plus, bit<2> aux_minus,
+                      bit<3> f0_plus, bit<3> f0_minus, bit<3> f0_cmd,
+                      bit<3> f1_plus, bit<3> f1_minus, bit<3> f1_cmd) {
         m.enabled = enabled;
         m.signal = signal;
         m.window = window;
         m.ring_len = ring_len;
-        m.lsq = lsq;
+        m.estimator = estimator;
+        m.balance = balance;
+        m.hold_min = hold_min;
         m.aux_plus = aux_plus;
         m.aux_minus = aux_minus;
+        m.f0_plus = f0_plus;
+        m.f0_minus = f0_minus;
+        m.f0_cmd = f0_cmd;
+        m.f1_plus = f1_plus;
+        m.f1_minus = f1_minus;
+        m.f1_cmd = f1_cmd;
     }
 
     table config {
         actions = {
             set_config;
         }
-        default_action = set_config(0, 0, 0, 0, 0, 0, 0);   // disabled
+        default_action = set_config(0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0);   // disabled
         size = 1;
     }
 
@@ -104,6 +118,41 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
         }
         default_action = set_offset(0);
         size = COMPENSATE_TABLE_SIZE;
+    }
+
+    // ------------------------------------------------------------ flow terms (3b)
+    action set_flow0(bit<32> flow, bit<16> band) {
+        m.flow0 = flow;
+        m.band0 = band;
+    }
+
+    table flow0 {
+        key = {
+            m.head0: range @name("head");
+            m.cmd0: range @name("cmd");
+        }
+        actions = {
+            set_flow0;
+        }
+        default_action = set_flow0(0, 0);
+        size = FLOW_TABLE_SIZE;
+    }
+
+    action set_flow1(bit<32> flow, bit<16> band) {
+        m.flow1 = flow;
+        m.band1 = band;
+    }
+
+    table flow1 {
+        key = {
+            m.head1: range @name("head");
+            m.cmd1: range @name("cmd");
+        }
+        actions = {
+            set_flow1;
+        }
+        default_action = set_flow1(0, 0);
+        size = FLOW_TABLE_SIZE;
     }
 
     // ------------------------------------------------------------ precondition
@@ -124,6 +173,9 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
             msg.p1: range @name("p1");
             msg.v1: range @name("v1");
             msg.v2: range @name("v2");
+            dp1: range @name("dp1");
+            dv1: range @name("dv1");
+            dv2: range @name("dv2");
         }
         actions = {
             qualify;
@@ -141,7 +193,7 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
     table classify {
         key = {
             m.slope_key: range @name("slope_key");
-            m.level: range @name("level");
+            m.key2: range @name("level");
         }
         actions = {
             set_class;
@@ -173,11 +225,28 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
             }
             run.write(slot, m.run);
 
-            // ring buffer: swap x in, old out; advance the pointer modulo R
+            // balance monitors: z = (x << 4) - acc, acc += expected inflow
+            m.z = (bit<32>)m.x;
+            m.key2 = m.x;
+            if (m.balance == 1) {
+                m.flow0 = 0;
+                m.flow1 = 0;
+                m.band0 = 0;
+                m.band1 = 0;
+                flow0.apply();
+                flow1.apply();
+                acc.read(m.acc, slot);
+                m.acc = m.acc + m.flow0 + m.flow1;
+                acc.write(slot, m.acc);
+                m.z = ((bit<32>)m.x << BALANCE_SHIFT) - m.acc;
+                m.key2 = m.band0 + m.band1;
+            }
+
+            // ring buffer: swap z in, old out; advance the pointer modulo R
             ptr.read(m.ptr, slot);
             m.ring_idx = (slot << MAX_WINDOW_LOG2) | (bit<32>)(m.ptr & (MAX_WINDOW - 1));
             ring.read(m.old, m.ring_idx);
-            ring.write(m.ring_idx, m.x);
+            ring.write(m.ring_idx, m.z);
             if (m.ptr + 1 == m.ring_len) {
                 ptr.write(slot, 0);
             } else {
@@ -187,8 +256,8 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
             // running sums (s1 first: it uses s0 before the update)
             s0.read(m.s0, slot);
             s1.read(m.s1, slot);
-            m.s1 = m.s1 + m.s0 - (bit<32>)m.ring_len * (bit<32>)m.old;
-            m.s0 = m.s0 + (bit<32>)m.x - (bit<32>)m.old;
+            m.s1 = m.s1 + m.s0 - (bit<32>)m.ring_len * m.old;
+            m.s0 = m.s0 + m.z - m.old;
             s0.write(slot, m.s0);
             s1.write(slot, m.s1);
 
@@ -196,8 +265,28 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
             compensate.apply();
             slope.apply(m);
 
+            m.c_raw = CLASS_NOT_EVALUATED;
             if (m.run >= m.window) {
                 classify.apply();
+                m.c_raw = m.cls;
+            }
+
+            // hold: write a class once the table gave it hold_min times in a row
+            cand.read(m.cand, slot);
+            hold.read(m.hold, slot);
+            if (m.c_raw == m.cand) {
+                if (m.hold != HOLD_MAX) {
+                    m.hold = m.hold + 1;
+                }
+            } else {
+                m.cand = m.c_raw;
+                m.hold = 1;
+            }
+            cand.write(slot, m.cand);
+            hold.write(slot, m.hold);
+            m.cls = CLASS_NOT_EVALUATED;
+            if (m.hold >= m.hold_min) {
+                m.cls = m.c_raw;
             }
 
             // verdict counts and changes (section 7): messages without a

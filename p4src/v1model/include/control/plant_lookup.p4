@@ -23,6 +23,13 @@ control PlantLookup(in headers_t hdr, inout local_metadata_t meta) {
 
     @name(".CivicIngress.last_seq")
     register<bit<32>>(MAX_PLANTS) last_seq;
+    // the plant's previous commands: the precondition's command steps
+    @name(".CivicIngress.last_p1")
+    register<bit<16>>(MAX_PLANTS) last_p1;
+    @name(".CivicIngress.last_v1")
+    register<bit<16>>(MAX_PLANTS) last_v1;
+    @name(".CivicIngress.last_v2")
+    register<bit<16>>(MAX_PLANTS) last_v2;
 
     @name(".CivicIngress.set_monitored")
     action set_monitored() {
@@ -65,6 +72,9 @@ control PlantLookup(in headers_t hdr, inout local_metadata_t meta) {
         meta.monitored = 0;
         meta.plant = 0;
         meta.gap = 0;
+        meta.dp1 = 0;
+        meta.dv1 = 0;
+        meta.dv2 = 0;
         monitored_port.apply();
         if (meta.monitored == 1) {
             plant_prefix.apply();
@@ -75,6 +85,18 @@ control PlantLookup(in headers_t hdr, inout local_metadata_t meta) {
                 meta.gap = 1;
             }
             last_seq.write(meta.slot, hdr.plant.seq);
+
+            // command steps |u - last_u| (pipeline.md section 3)
+            bit<16> last;
+            last_p1.read(last, meta.slot);
+            meta.dp1 = hdr.plant.p1 > last ? hdr.plant.p1 - last : last - hdr.plant.p1;
+            last_p1.write(meta.slot, hdr.plant.p1);
+            last_v1.read(last, meta.slot);
+            meta.dv1 = hdr.plant.v1 > last ? hdr.plant.v1 - last : last - hdr.plant.v1;
+            last_v1.write(meta.slot, hdr.plant.v1);
+            last_v2.read(last, meta.slot);
+            meta.dv2 = hdr.plant.v2 > last ? hdr.plant.v2 - last : last - hdr.plant.v2;
+            last_v2.write(meta.slot, hdr.plant.v2);
         }
     }
 }

@@ -1,7 +1,9 @@
 /*
  * CIVIC v1model -- slope estimators (docs/pipeline.md section 3).
  *
- *   endpoint: slope = x - old                 (old = x[n - W + 1], R = W - 1)
+ * over z, the ring's values (x, or a balance monitor's (x << 4) - acc):
+ *   endpoint: slope = z - old                 (old = z[n - W + 1], R = W - 1)
+ *   value:    slope = z                       (limit monitors)
  *   lsq:      slope = (W - 1) * s0 - 2 * s1   (R = W; twice the least-
  *             squares numerator; the switch never divides, the class
  *             ranges are scaled instead)
@@ -18,10 +20,12 @@
 
 control Slope(inout monitor_md_t m) {
     apply {
-        if (m.lsq == 1) {
+        if (m.estimator == ESTIMATOR_LSQ) {
             m.slope = ((bit<32>)m.window - 1) * m.s0 - (m.s1 << 1);
+        } else if (m.estimator == ESTIMATOR_ENDPOINT) {
+            m.slope = m.z - m.old;
         } else {
-            m.slope = (bit<32>)m.x - (bit<32>)m.old;
+            m.slope = m.z;                      // value: a limit monitor's level
         }
         m.slope_key = (m.slope - m.offset) ^ SLOPE_BIAS;
     }

@@ -20,6 +20,9 @@
  * Control-plane names: those of v1model (BF-RT: with the prefix "pipe."),
  * plus monK.precondition_cmd / qualify_cmd / disqualify_cmd.
  *
+ * The balance profile (balance_t3 and balance_t1, monitors 2 and 3, in place
+ * of these two test monitors) is p4src/tna/civic_balance.p4.
+ *
  * Ingress stage plan as bf-p4c 9.13.4 placed it (both slots in each stage):
  *   0  forward, monitored_port, plant_prefix, seq - 1, monK.config,
  *      monK.precondition, monK.precondition_cmd
@@ -37,6 +40,9 @@
  *  11  digest_type (a slot's verdict changed)
  * Egress: verdict word from the bridge header, checksum (stages 0-8).
  */
+#ifdef CIVIC_PROFILE_BALANCE
+#error "the balance profile is p4src/tna/civic_balance.p4 (it defines CIVIC_PROFILE_BALANCE)"
+#endif
 #include <core.p4>
 #include <tna.p4>
 

@@ -4,8 +4,11 @@ v1model program (with the documented TNA differences), the register sizes and wi
 and the compensation (pipeline.md 3a) in no stage of its own: aux and compensate are
 placed before the stage-4 step that adds compensate's bias.
 
-One compile (about 15 s on a 2-core machine) shared by every test of this module.
-Skipped when bf-p4c is not on PATH (the open-source Tofino backend, see p4src/README.md).
+Both compile-time profiles: the default p4src/tna/civic.p4 (test monitors drain_t3, fill_t1
+as mon0, mon1) and p4src/tna/civic_balance.p4 (it defines CIVIC_PROFILE_BALANCE: balance
+monitors balance_t3, balance_t1 as mon2, mon3; pipeline.md 3b). One compile per profile (about 10 s each on a 2-core machine), shared by
+the tests of that profile. Skipped when bf-p4c is not on PATH (the open-source Tofino
+backend, see p4src/README.md); the arithmetic transcriptions run without it.
 """
 from __future__ import annotations
 
@@ -28,19 +31,29 @@ needs_bf_p4c = pytest.mark.skipif(shutil.which("bf-p4c") is None,
                                          "export PATH=/opt/p4/bin:$PATH, see p4src/README.md)")
 
 
-@pytest.fixture(scope="module")
-def build(tmp_path_factory) -> Path:
+def compile_tna(out: Path, program: str) -> Path:
     if shutil.which("bf-p4c") is None:
         pytest.skip("bf-p4c not on PATH (open-source Tofino backend; "
                     "export PATH=/opt/p4/bin:$PATH, see p4src/README.md)")
-    out = tmp_path_factory.mktemp("tna")
     cmd = ["bf-p4c", "--target", "tofino", "--arch", "tna", "-g", "-I", str(ROOT / "p4src"),
-           "-o", str(out), str(ROOT / "p4src/tna/civic.p4")]
+           "-o", str(out), str(ROOT / "p4src/tna" / program)]
     res = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=300)
     log = res.stdout + res.stderr
     assert res.returncode == 0, f"bf-p4c failed:\n{log[-4000:]}"
     assert not re.search(r"\berror\b", log, re.IGNORECASE), f"bf-p4c reported an error:\n{log[-4000:]}"
     return out
+
+
+@pytest.fixture(scope="module")
+def build(tmp_path_factory) -> Path:
+    """The default profile: drain_t3, fill_t1."""
+    return compile_tna(tmp_path_factory.mktemp("tna"), "civic.p4")
+
+
+@pytest.fixture(scope="module")
+def build_balance(tmp_path_factory) -> Path:
+    """The balance profile: balance_t3, balance_t1 (include/config.p4)."""
+    return compile_tna(tmp_path_factory.mktemp("tna_balance"), "civic_balance.p4")
 
 
 def resource_rows(build: Path) -> list[dict[str, str]]:
@@ -63,11 +76,16 @@ def bfrt_tables(build: Path) -> dict[str, dict]:
     return {t["name"]: t for t in json.loads((build / "bfrt.json").read_text())["tables"]}
 
 
+def bfa(build: Path) -> str:
+    """The assembler source (pipe/civic.bfa, pipe/civic_balance.bfa)."""
+    return next((build / "pipe").glob("*.bfa")).read_text()
+
+
 def ingress_stages(build: Path) -> dict[str, int]:
     """First ingress stage of every table in civic.bfa, by P4 name (@hidden steps included)."""
     stages: dict[str, int] = {}
     stage = None
-    for line in (build / "pipe/civic.bfa").read_text().splitlines():
+    for line in bfa(build).splitlines():
         if m := re.match(r"stage (\d+) (ingress|egress):", line):
             stage = int(m.group(1)) if m.group(2) == "ingress" else None
         elif stage is not None and (m := re.match(r"\s+p4: \{ name: ([\w.$]+)", line)):
@@ -333,3 +351,211 @@ def test_verdict_change_digest_and_counters(build):
     for k in range(TNA_MONITORS):
         counter = tables[f"pipe.CivicEgress.notify.verdicts{k}"]
         assert counter["table_type"] == "Counter" and counter["size"] == 256 * 4
+
+
+# ---------------------------------------------------------------- the balance profile
+BALANCE_MONITORS = (2, 3)       # balance_t3, balance_t1: monitor indices (verdict bits 5..4, 7..6)
+
+
+@needs_bf_p4c
+def test_balance_binary_and_stages(build_balance):
+    """civic_balance.p4 compiles in 12 stages or fewer, SALUs at most 4 per stage: last_seq,
+    last_p1, last_v1, last_v2, and per slot ring, ptr, run, s0, slope, acc, accb, ringb, hold,
+    last_class."""
+    assert (build_balance / "pipe/tofino.bin").stat().st_size > 0
+    summary = (build_balance / "pipe/logs/table_summary.log").read_text()
+    ingress = [int(n) for n in re.findall(r"Number of stages for ingress table allocation: (\d+)", summary)]
+    assert ingress and ingress[-1] <= MAX_STAGES, ingress
+    rows = resource_rows(build_balance)
+    used = [int(r["Stage Number"]) for r in rows if int(r["Logical TableID"]) > 0]
+    assert used and max(used) < MAX_STAGES, used
+    salus = [int(r["Meter ALU"]) for r in rows]
+    assert max(salus) <= 4 and sum(salus) == 4 + 10 * len(BALANCE_MONITORS), salus
+
+
+@needs_bf_p4c
+def test_balance_control_plane_objects(build_balance):
+    tables = bfrt_tables(build_balance)
+    want = {"pipe.CivicIngress.forward": ["ingress_port"],
+            "pipe.CivicIngress.monitored_port": ["dst_port"],
+            "pipe.CivicIngress.plant_prefix": ["src_addr"]}
+    for k in BALANCE_MONITORS:
+        m = f"pipe.CivicIngress.mon{k}"
+        want[f"{m}.config"] = []
+        want[f"{m}.precondition"] = ["l1", "l2", "l3", "l4", "$MATCH_PRIORITY"]
+        # the command steps join the commands: six 16-bit range keys, bf-p4c's most per table
+        want[f"{m}.precondition_cmd"] = ["p1", "v1", "v2", "dp1", "dv1", "dv2", "$MATCH_PRIORITY"]
+        want[f"{m}.flow0"] = ["head", "cmd", "$MATCH_PRIORITY"]
+        want[f"{m}.flow1"] = ["head", "cmd", "$MATCH_PRIORITY"]
+        want[f"{m}.classify"] = ["slope_key_hi", "slope_key_lo", "level", "$MATCH_PRIORITY"]
+    for name, keys in want.items():
+        assert name in tables, name
+        assert [k["name"] for k in tables[name]["key"]] == keys, name
+    match_tables = {n for n, t in tables.items() if t["table_type"] == "MatchAction_Direct"}
+    assert match_tables == set(want), "no @hidden step table, and no compensate (a balance monitor has none)"
+    for k in BALANCE_MONITORS:
+        m = f"pipe.CivicIngress.mon{k}"
+
+        def actions(t):
+            return {a["name"]: [d["name"] for d in a.get("data", [])] for a in tables[f"{m}.{t}"]["action_specs"]}
+        # v1model's set_config parameters (TNA uses `enabled` only)
+        assert actions("config") == {f"CivicIngress.mon{k}.set_config": [
+            "enabled", "signal", "window", "ring_len", "estimator", "balance", "hold_min", "aux_plus",
+            "aux_minus", "f0_plus", "f0_minus", "f0_cmd", "f1_plus", "f1_minus", "f1_cmd"]}
+        for t in ("flow0", "flow1"):
+            assert actions(t) == {f"CivicIngress.mon{k}.set_{t}": ["flow", "band"]}
+            assert {key["match_type"] for key in tables[f"{m}.{t}"]["key"][:-1]} == {"Range"}
+        # one action per class, each running its class's hold RegisterAction; set_class on a miss
+        assert actions("classify") == {f"CivicIngress.mon{k}.set_none": [], f"CivicIngress.mon{k}.set_normal": [],
+                                       f"CivicIngress.mon{k}.set_warning": [], f"CivicIngress.mon{k}.set_error": [],
+                                       f"CivicIngress.mon{k}.set_class": ["cls"]}
+
+
+@needs_bf_p4c
+def test_balance_registers(build_balance):
+    tables = bfrt_tables(build_balance)
+    want = {"pipe.CivicIngress.last_seq": (256, [32]), "pipe.CivicIngress.last_p1": (256, [16]),
+            "pipe.CivicIngress.last_v1": (256, [16]), "pipe.CivicIngress.last_v2": (256, [16])}
+    for k in BALANCE_MONITORS:
+        m = f"pipe.CivicIngress.mon{k}"
+        want.update({f"{m}.ring": (32768, [32]), f"{m}.ptr": (256, [8]), f"{m}.run": (256, [8]),
+                     f"{m}.s0": (256, [32]), f"{m}.slope": (256, [32]), f"{m}.acc": (256, [32]),
+                     f"{m}.accb": (256, [32]), f"{m}.ringb": (32768, [32]),
+                     f"{m}.hold": (256, [16, 16]), f"{m}.last_class": (256, [8])})
+    registers = {n: t for n, t in tables.items() if t["table_type"] == "Register"}
+    assert set(registers) == set(want)
+    for name, (size, widths) in want.items():
+        t = registers[name]
+        assert t["size"] == size, name
+        assert [d["singleton"]["type"]["width"] for d in t["data"]] == widths, name
+
+
+@needs_bf_p4c
+def test_balance_stage_plan(build_balance):
+    """The chain of control/balance.p4: the flow term on message fields, then the one on a head
+    difference, acc, z, ring, the slope steps, the slope register, classify with the hold in
+    one stage, last_class, and the digest in the last stage."""
+    stages = ingress_stages(build_balance)
+    for k, early, late in ((2, "flow1", "flow0"), (3, "flow0", "flow1")):
+        m = f"CivicIngress.mon{k}"
+        chain = [stages[f"{m}.{t}"] for t in (early, late, "acc", "push_z", "ring", "diff", "s0", "add_s0",
+                                               "slope", "classify", "last_class")]
+        assert chain == sorted(set(chain)), (k, chain)       # strictly increasing stages
+        # (W - 1) * (z + old) beside it: ring -> times_a -> times_b -> add_s0
+        side = [stages[f"{m}.{t}"] for t in ("ring", "times_a", "times_b", "add_s0")]
+        assert side == sorted(set(side)), (k, side)
+        assert stages[f"{m}.{early}"] == 0 and stages[f"{m}.hold"] == stages[f"{m}.classify"], k
+        assert stages[f"{m}.run"] < stages[f"{m}.classify"], k
+        # band_w: the bands accumulated, the ring of accb, (accb - oldb) >> 7 before classify
+        band = [stages[f"{m}.{t}"] for t in (late, "accb", "ringb", "band_sum", "band_scale", "classify")]
+        assert band == sorted(set(band)), (k, band)
+        assert stages[f"{m}.precondition_cmd"] < stages[f"{m}.run"], k
+    assert max(stages.values()) == MAX_STAGES - 1
+
+
+@needs_bf_p4c
+def test_balance_stateful_alu_programs(build_balance):
+    """The RegisterActions as compiled: the ring stores z and returns old + z; s0 adds z - old and
+    returns s0 - old; the slope register subtracts ndelta and returns the new value; hold
+    compares cand with the class, saturates hold, and writes the class only with hold >= H - 1."""
+    text = bfa(build_balance)
+    c = config_defines()
+
+    def program(reg: str, action: str) -> list[str]:
+        m = re.search(rf"{action}:\n((?:\s+- .*\n)+)", text[text.index(f"p4: {{ name: {reg},"):])
+        assert m, (reg, action)
+        return [ln.strip()[2:] for ln in m.group(1).splitlines()]
+    for k in BALANCE_MONITORS:
+        m = f"CivicIngress.mon{k}"
+        assert program(f"{m}.ring", f"mon{k}_ring_swap") == ["add hi, lo, phv_lo", "alu_a lo, phv_lo", "output alu_hi"]
+        assert program(f"{m}.s0", f"mon{k}_s0_add") == ["sub hi, lo, phv_lo", "add lo, lo, phv_hi", "output alu_hi"]
+        assert program(f"{m}.slope", f"mon{k}_slope_add") == ["sub lo, lo, phv_lo", "output alu_lo"]
+        hold = c[f"BAL{k}_HOLD"][0]
+        for cls, name in ((1, "normal"), (2, "warning"), (3, "error")):
+            prog = program(f"{m}.hold", f"mon{k}_hold_{name}")
+            assert f"equ lo, hi, -{cls}" in prog and "saddu cmplo, lo, lo, 1" in prog, prog
+            assert f"geq.u hi, lo, -{hold - 1}" in prog and "output (cmplo & cmphi), mem_hi(0..7)" in prog, prog
+
+
+@needs_bf_p4c
+def test_balance_digest_and_counters(build_balance):
+    bfrt = json.loads((build_balance / "bfrt.json").read_text())
+    learn = {f["name"]: [d["name"] for d in f["fields"]] for f in bfrt.get("learn_filters", [])}
+    assert learn["pipe.CivicIngressDeparser.verdict_change"] == [
+        "plant", "seq", "chg2", "chg3", "cls2", "cls3", "key2", "band2", "level2", "key3", "band3", "level3"]
+    tables = bfrt_tables(build_balance)
+    for k in BALANCE_MONITORS:
+        counter = tables[f"pipe.CivicEgress.notify.verdicts{k}"]
+        assert counter["table_type"] == "Counter" and counter["size"] == 256 * 4
+
+
+def test_balance_constants():
+    """W - 1 = (1 + 2^A) * (1 + 2^B) (the two hash-shift steps), R = W (lsq), 2 <= H <= 255."""
+    c = config_defines()
+    w = c["BAL_WINDOW"][0]
+    assert c["BAL_RING_LEN"][0] == w
+    assert (1 + 2 ** c["BAL_W1_A"][0]) * (1 + 2 ** c["BAL_W1_B"][0]) == w - 1
+    for k in BALANCE_MONITORS:
+        assert 2 <= c[f"BAL{k}_HOLD"][0] <= 255
+
+
+@pytest.mark.parametrize("hold", [2, 20])
+def test_balance_steps_match_the_model(hold):
+    """control/balance.p4's steps, transcribed (bit<32> modular), against the software model
+    (civic.pipeline: accumulator, ring, lsq over z, hold) on a random stream with wrapping
+    accumulators and every hold / class pattern."""
+    from civic.pipeline import balance, classification, data_collection
+    from civic.pipeline import slope as model_slope
+    from civic.pipeline.classification import slope_key as model_key
+
+    m32, w = 0xFFFFFFFF, 100
+    c = config_defines()
+    a, b = c["BAL_W1_A"][0], c["BAL_W1_B"][0]
+    rng = __import__("random").Random(hold)
+    ring = data_collection.RingState(1, w)
+    acc_model = 0
+    cand_m, hold_m = 0, 0
+    # TNA registers
+    ring_t, ptr, acc, s0, slope_reg = [0] * 128, 0, 0, 0, 0x80000000
+    ringb_t, accb = [0] * 128, 0
+    bands = []
+    cand, hold_t = 0, 0
+    for n in range(5 * w + 7):
+        x = rng.choice((0, 65535, rng.randrange(65536)))
+        e = rng.choice((0, rng.randrange(-2**24, 2**24), 2**24, -2**24)) & m32
+        band = rng.choice((0, 65535, rng.randrange(65536)))
+        # pipeline.md 3b: band_w = the last R bands summed (the ring starts empty: zeros), >> 7, 16 bit
+        bands.append(band)
+        want_band_w = (sum(bands[-w:]) >> 7) & 0xFFFF
+        # model
+        acc_model = (acc_model + e) & m32
+        z_model = int(balance.pushed(x, acc_model))
+        ring.push(0, z_model)
+        want = int(model_slope.lsq(ring.s0[0], ring.s1[0], w))
+        # TNA (balance.p4)
+        acc = (acc + e) & m32                                   # acc_add
+        x16 = x << 4                                            # widen_x
+        z = (x16 - acc) & m32                                   # push_z
+        z2 = (z << 1) & m32                                     # twice_z
+        p, ptr = ptr, 0 if ptr == w - 1 else ptr + 1            # ptr_advance
+        accb = (accb + band) & m32                              # widen_band, accb_add
+        oldb, ringb_t[p] = ringb_t[p], accb                     # ringb_swap
+        band_w = (((accb - oldb) & m32) >> 7) & 0xFFFF          # band_sum, band_scale (bits 22..7)
+        assert band_w == want_band_w, n
+        a1, ring_t[p] = (ring_t[p] + z) & m32, z                # ring_swap: old + z
+        old = (a1 - z) & m32                                    # get_old
+        d = (z2 - a1) & m32                                     # diff
+        ns0, s0 = (s0 - old) & m32, (s0 + d) & m32              # s0_add
+        a3 = (a1 + ((a1 << a) & m32)) & m32                     # times_a
+        a99 = (a3 + ((a3 << b) & m32)) & m32                    # times_b
+        ndelta = (((ns0 << 1) & m32) - a99) & m32               # add_s0
+        slope_reg = (slope_reg - ndelta) & m32                  # slope_add
+        assert slope_reg == int(model_key(want)), n
+        # hold: the class from the table (0..3), as classify's actions give it
+        c_raw = rng.choice((0, 1, 1, 1, 2, 3)) if rng.random() < 0.2 else cand_m
+        cand_m, hold_m = classification.next_hold(cand_m, hold_m, c_raw)
+        written = int(classification.held(c_raw, hold_m, hold))
+        out = c_raw if (cand == c_raw and hold_t >= hold - 1 and c_raw != 0) else 0
+        hold_t = min(hold_t + 1, 0xFFFF) if cand == c_raw else 1
+        cand = c_raw
+        assert out == written, n

@@ -71,6 +71,48 @@
 // COMPENSATE_TABLE_SIZE 256 (shared/define.p4).
 #define TNA_COMPENSATE_TABLE_SIZE 128
 
+// ------------------------------------------------------------ balance profile
+// p4src/tna/civic_balance.p4 defines CIVIC_PROFILE_BALANCE: its two slots
+// are the always-on balance monitors of configs/monitors.toml,
+// balance_t3 (monitor 2, verdict bits 5..4) and balance_t1 (monitor 3, bits
+// 7..6), instead of drain_t3 and fill_t1 (monitors 0 and 1, whose verdict
+// bits stay 0 in this profile). Each profile alone uses all 12 stages
+// (p4src/README.md, "The balance profile").
+// What TNA fixes at compile time for a balance slot (include/balance/balance.p4):
+//  - the window W = R = 100 (lsq; the ring holds z = (x << 4) - acc);
+//  - the signal and the flow terms' operands (pipeline.md 3b), those of
+//    configs/monitors.toml:
+//      mon2 balance_t3: x = l3; flow0 = pipe23 (head l2 - l3, cmd zero),
+//                       flow1 = V2 (head l3 - zero, cmd v2)
+//      mon3 balance_t1: x = l1; flow0 = P1 (head zero - zero, cmd p1),
+//                       flow1 = V1 (head l1 - l2, cmd v1)
+//    (the band comes from whichever term's entries carry it: band = band0 +
+//    band1 as on v1model);
+//  - the hold H, 2..255 (configs/monitors.toml: 20 for both; civic train
+//    may choose another: the entries' hold must equal BALk_HOLD, as their
+//    window must equal BAL_WINDOW).
+#ifdef CIVIC_PROFILE_BALANCE
+#define BAL_WINDOW 100
+#define BAL_RING_LEN 100
+// The lsq slope is carried in a register of its own (include/balance/balance.p4):
+//   slope' = slope + (W - 1) * (z + old) + 2 * (old - s0)      (R = W)
+// and W - 1 = 99 = (1 + 2^1) * (1 + 2^5): two steps of "v + (v << a)"
+// (the shifted operand from an identity hash), one stage each.
+#define BAL_W1_A 1
+#define BAL_W1_B 5
+// the class table's second key is the window's band sum >> 7 (pipeline.md 3b,
+// civic/entries.py BAND_SUM_SHIFT)
+#define TNA_BAND_SUM_SHIFT 7
+#define BAL2_HOLD 20
+#define BAL3_HOLD 20
+#endif
+
+// Flow terms (pipeline.md 3b) are 2-D range tables in TCAM: each (head, cmd)
+// rectangle expands to (rows of the head range) x (rows of the cmd range)
+// TCAM words (p4src/README.md, "The balance profile"). v1model:
+// FLOW_TABLE_SIZE 8192.
+#define TNA_FLOW_TABLE_SIZE 512
+
 // Verdict changes (pipeline.md section 7): last_class holds the class, the
 // digest's chgK says "changed" with this bit (so that a change from "none
 // yet", 0, is not 0); ig_dprsr_md.digest_type of the verdict-change digest.

@@ -94,14 +94,84 @@ struct verdict_change_tna_t {
     bit<16> level1;
 }
 
+// Working state of one balance slot (CIVIC_PROFILE_BALANCE, balance.p4).
+// As in monitor_md_t, every field is written by one ALU operation in one
+// stage; the 32-bit ones are pinned to 32-bit containers (civic.p4).
+struct balance_md_t {
+    bit<1>  enabled;        // set_config
+    bit<1>  q;              // precondition (l1..l4) holds
+    bit<1>  q_cmd;          // precondition_cmd (p1 v1 v2 dp1 dv1 dv2) holds
+    bit<8>  run;            // run counter after this message
+    bit<8>  ptr;            // ring pointer before this message
+    bit<32> x16;            // x << 4, zero-extended
+    bit<32> e;              // flow0 + flow1: expected net inflow of this sample
+    bit<16> band;           // band0 + band1
+    bit<32> band32;         // band, zero-extended
+    bit<32> acc;            // acc after this message (acc')
+    bit<32> accb;           // accb after this message: the bands accumulated
+    bit<32> oldb;           // ringb cell overwritten by accb
+    bit<32> bdiff;          // accb - oldb: the last R bands summed
+    bit<16> band_w;         // (bdiff >> 7) mod 2^16: the class table's second key
+    bit<32> z;              // (x << 4) - acc', what the ring gets
+    bit<32> z2;             // 2 * z
+    bit<32> a1;             // z + old (the ring's result)
+    bit<32> old;            // ring cell overwritten by z
+    bit<32> d;              // z - old
+    bit<32> a3;             // 3 * (z + old)
+    bit<32> a99;            // (W - 1) * (z + old)
+    bit<32> ns0;            // s0 - old (s0 before its update)
+    bit<32> ndelta;         // minus the slope increment: 2 * (s0 - old) - (W - 1) * (z + old)
+    bit<32> slope_key;      // slope XOR 2^31 (the slope register)
+    bit<8>  w;              // the class written (0 while hold < H)
+    bit<8>  chg;            // 0: no verdict change; else last_class before | CHANGED
+}
+
+// The verdict-change digest of the balance profile: as verdict_change_tna_t
+// for monitors 2 and 3, with band_w (the class table's second key) in place
+// of aux, and the slope key = raw slope XOR 2^31 (no compensation).
+struct verdict_change_balance_t {
+    bit<32> plant;
+    bit<32> seq;
+    bit<8>  chg2;
+    bit<8>  chg3;
+    bit<2>  cls2;
+    bit<2>  cls3;
+    bit<32> key2;
+    bit<16> band2;
+    bit<16> level2;
+    bit<32> key3;
+    bit<16> band3;
+    bit<16> level3;
+}
+
 struct ig_metadata_t {
     bit<1>       monitored;  // monitored_port hit
     bit<1>       in_prefix;  // plant_prefix hit
     bit<8>       slot;       // ipv4.src_addr[7:0]
     bit<32>      seq_m1;     // seq - 1
     bit<1>       gap;
+#ifdef CIVIC_PROFILE_BALANCE
+    bit<16>      last_p1;    // the plant's previous commands (CommandSteps)
+    bit<16>      last_v1;
+    bit<16>      last_v2;
+    bit<16>      up_p1;      // cmd |-| last_cmd
+    bit<16>      up_v1;
+    bit<16>      up_v2;
+    bit<16>      dn_p1;      // last_cmd |-| cmd
+    bit<16>      dn_v1;
+    bit<16>      dn_v2;
+    bit<16>      dp1;        // command steps |cmd - last_cmd| (pipeline.md 3)
+    bit<16>      dv1;
+    bit<16>      dv2;
+    bit<16>      head23;     // (l2 - l3) mod 2^16: balance_t3's pipe23 head
+    bit<16>      head12;     // (l1 - l2) mod 2^16: balance_t1's V1 head
+    bit<16>      zero;       // the operand "zero" (never written)
+    balance_md_t mon2;
+    balance_md_t mon3;
+#else
     monitor_md_t mon0;
     monitor_md_t mon1;
+#endif
 }
 
 struct eg_metadata_t {

@@ -75,14 +75,26 @@ control CivicIngressDeparser(packet_out pkt,
                              inout ig_headers_t hdr,
                              in ig_metadata_t meta,
                              in ingress_intrinsic_metadata_for_deparser_t ig_dprsr_md) {
+#ifdef CIVIC_PROFILE_BALANCE
+    Digest<verdict_change_balance_t>() verdict_change;
+#else
     Digest<verdict_change_tna_t>() verdict_change;
+#endif
 
     apply {
         if (ig_dprsr_md.digest_type == DIGEST_VERDICT_CHANGE) {
+#ifdef CIVIC_PROFILE_BALANCE
+            // monitors 2 and 3; levels: balance_t3 watches l3, balance_t1 l1
+            verdict_change.pack({hdr.ipv4.src_addr, hdr.plant.seq, meta.mon2.chg, meta.mon3.chg,
+                                 hdr.bridge.cls0, hdr.bridge.cls1,
+                                 meta.mon2.slope_key, meta.mon2.band_w, hdr.plant.l3,
+                                 meta.mon3.slope_key, meta.mon3.band_w, hdr.plant.l1});
+#else
             verdict_change.pack({hdr.ipv4.src_addr, hdr.plant.seq, meta.mon0.chg, meta.mon1.chg,
                                  hdr.bridge.cls0, hdr.bridge.cls1,
                                  meta.mon0.slope_key, meta.mon0.aux, meta.mon0.x,
                                  meta.mon1.slope_key, meta.mon1.aux, meta.mon1.x});
+#endif
         }
         pkt.emit(hdr.bridge);
         pkt.emit(hdr.ethernet);

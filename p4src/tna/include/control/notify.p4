@@ -13,8 +13,16 @@
 #define _CIVIC_TNA_NOTIFY_P4_
 
 control Notify(in eg_headers_t hdr, in bit<2> cls1, in bit<2> cls0) {
+#ifdef CIVIC_PROFILE_BALANCE
+    // the profile's slots are monitors 2 and 3: verdicts2, verdicts3
+    @name("verdicts2")
+    Counter<bit<32>, bit<10>>(VERDICT_COUNTER_CELLS, CounterType_t.PACKETS) verdicts0;
+    @name("verdicts3")
+    Counter<bit<32>, bit<10>>(VERDICT_COUNTER_CELLS, CounterType_t.PACKETS) verdicts1;
+#else
     Counter<bit<32>, bit<10>>(VERDICT_COUNTER_CELLS, CounterType_t.PACKETS) verdicts0;
     Counter<bit<32>, bit<10>>(VERDICT_COUNTER_CELLS, CounterType_t.PACKETS) verdicts1;
+#endif
     Hash<bit<10>>(HashAlgorithm_t.IDENTITY) cell0;
     Hash<bit<10>>(HashAlgorithm_t.IDENTITY) cell1;
 

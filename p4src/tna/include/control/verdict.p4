@@ -44,7 +44,6 @@ control Verdict(inout eg_headers_t hdr, in bit<2> cls1, in bit<2> cls0) {
     // (one hash result per table: 32 bits of immediate data each)
     CIVIC_STEP(widen_1, hc = widen_hc.get({hdr.udp.checksum});)
     CIVIC_STEP(widen_2, m_old = widen_m_old.get({hdr.plant.verdict});)
-    CIVIC_STEP(widen_3, m_n = widen_m_new.get({cls1, cls0});)
     CIVIC_STEP(terms, a = 0x1FFFE - hc; b = m_n - m_old;)
     CIVIC_STEP(sum, s = a + b;)
     CIVIC_STEP(split1, lo = s & 0xFFFF; hi = s >> 16;)
@@ -54,7 +53,14 @@ control Verdict(inout eg_headers_t hdr, in bit<2> cls1, in bit<2> cls0) {
     CIVIC_STEP(invert, s_n = ~s;)
     CIVIC_STEP(write_ffff, hdr.udp.checksum = 0xFFFF;)
     CIVIC_STEP(write_sum, hdr.udp.checksum = narrow.get({s_n[15:0]});)
+#ifdef CIVIC_PROFILE_BALANCE
+    // the profile's slots are monitors 2 and 3: bits 7..6 and 5..4
+    CIVIC_STEP(widen_3, m_n = widen_m_new.get({cls1, cls0, 4w0});)
+    CIVIC_STEP(write_verdict, hdr.plant.verdict = verdict_word.get({cls1, cls0, 4w0});)
+#else
+    CIVIC_STEP(widen_3, m_n = widen_m_new.get({cls1, cls0});)
     CIVIC_STEP(write_verdict, hdr.plant.verdict = verdict_word.get({cls1, cls0});)
+#endif
 
     apply {
         // reads hdr.plant.verdict before write_verdict replaces it (stage order)

@@ -101,8 +101,13 @@
 #define BAL_W1_A 1
 #define BAL_W1_B 5
 // the class table's second key is the window's band sum >> 7 (pipeline.md 3b,
-// civic/entries.py BAND_SUM_SHIFT)
+// civic/entries.py BAND_SUM_SHIFT; shared/define.p4's BAND_SUM_SHIFT when
+// it defines one)
+#ifdef BAND_SUM_SHIFT
+#define TNA_BAND_SUM_SHIFT BAND_SUM_SHIFT
+#else
 #define TNA_BAND_SUM_SHIFT 7
+#endif
 #define BAL2_HOLD 20
 #define BAL3_HOLD 20
 #endif

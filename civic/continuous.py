@@ -22,14 +22,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from civic.config import Monitor
-from civic.entries import BALANCE_SHIFT, SLOPE_MAX, SLOPE_MIN, FlowTerm, MonitorEntries
+from civic.entries import BALANCE_SHIFT, BAND_SUM_SHIFT, SLOPE_MAX, SLOPE_MIN, FlowTerm, MonitorEntries
 from civic.errors import CivicError
 from civic.plant.model import PlantModel
 from civic.wire import CLASS_CODES, ip_to_int
 
 SAMPLE_RATE = 10.0                      # messages per second
 FLOW_UNIT = 1000.0 / SAMPLE_RATE * (1 << BALANCE_SHIFT)   # L/s -> sixteenths of a mL per sample
-BAND_UNIT = 10.0                        # band key: expected flow in 0.1 mL/s
+BAND_UNIT = 10.0                        # a flow term's band: expected flow in 0.1 mL/s
 TERM_REL_TOL = 0.02                     # a 1-D flow-table cell's flow stays within ±2 %
 TERM_REL_TOL_2D = 0.03                  # ... a 2-D cell's within ±3 % along each key
 TERM_ABS_TOL = 1.0                      # ... or ±1 mL/s where the flow is small
@@ -37,11 +37,13 @@ BAND_ERROR = 0.05                       # no verdict in bands where the cuts mis
 BAND_RATIO = 1.1                        # class bands: geometric, 10 % wide
 BAND_TOP = 5000                         # 500 mL/s: the last band covers everything above
 NOISE_MARGIN = 4.0                      # the normal cut must clear this many residual sigmas
-HOLDS = (5, 10, 15, 20, 30, 40, 60)     # candidate holds, messages
+HOLDS = (5, 10, 15, 20, 30, 40, 50, 60, 80, 100)   # candidate holds, messages
+HOLD_MARGIN = 1.5
 SETTLE_S = 60.0                         # the minute after an onset is not scored
 CLOSED_LOOP_UNITS = 4                   # simulated units per fault case in training
 CLOSED_LOOP_SEED = 2026
 UNIT_SPREAD = 0.03
+PI_GAINS = ((0.2, 0.25, 0.25), (5.0, 5.0, 5.0))   # like the recorded loops: command noise ~0.6 % a message, settled within ~20 s
 FAULTS = {"balance_t3": ("vm1", {"warning": 0.30, "error": 0.55}),
           "balance_t1": ("vm2", {"warning": 0.20, "error": 0.40})}
 
@@ -221,7 +223,7 @@ def closed_loop_runs(model: PlantModel, units: int, spread: float, seed: int, du
     PI control through random setpoints and the embedded tests, onsets drawn in `onsets`."""
     from civic.envelope import messages
     from civic.evalsets import spread_unit
-    from civic.plant.control import run_closed_loop
+    from civic.plant.control import operation_schedule, run_closed_loop
     from civic.plant.procedures import apply_faults
 
     cases = [("none", 0.0)] + [(v, c) for v, cl in FAULTS.values() for c in cl.values()]
@@ -233,8 +235,10 @@ def closed_loop_runs(model: PlantModel, units: int, spread: float, seed: int, du
             unit = spread_unit(model, np.random.default_rng(unit_seed), spread)
             onset = None if fault == "none" else float(rng.uniform(*onsets))
             faulted = (onset, apply_faults(unit, {fault: closure})) if onset is not None else None
-            res = run_closed_loop(unit, duration, controller="pi", seed=int(rng.integers(2**31)),
-                                  controller_model=model, onset=faulted)
+            run_rng = np.random.default_rng(int(rng.integers(2**31)))
+            res = run_closed_loop(unit, duration, controller="pi", seed=int(run_rng.integers(2**31)),
+                                  schedule=operation_schedule(duration, run_rng), controller_model=model,
+                                  onset=faulted, pi_gains=PI_GAINS)
             msgs = messages(res.fields, seq0=int(rng.integers(2**32)), src=ip_to_int("10.0.0.1"))
             out.append(ClosedLoopRun(msgs, onset, fault, closure, unit_seed))
             if progress is not None:
@@ -286,7 +290,10 @@ class BalanceClassifier:
         self.sigma_ = float(1.4826 * np.median(np.abs(resid[normal] - np.median(resid[normal]))))
         warn, err = scored & (y == 2), scored & (y == 3)
         # fit the cuts where the classes are meant to be told apart: enough flow for the noise
-        strong = band >= np.quantile(band[faulty], 0.25)
+        visible = faulty & (band > self.noise_margin * self.sigma_)
+        if not visible.any():
+            raise CivicError("no faulty windows with flow enough to see the fault in the simulated operation")
+        strong = band >= np.quantile(band[visible], 0.5)
         self.t1_ = _cut(r, normal & strong, (warn | err) & strong)
         self.t2_ = _cut(r, warn & strong, err & strong) if warn.any() and err.any() else np.inf
         self.q_min_ = 0.0
@@ -294,16 +301,18 @@ class BalanceClassifier:
         return self
 
     def _min_band(self, resid, band, y) -> float:
-        """The lowest band edge above which every 10 %-band misclassifies at most BAND_ERROR."""
+        """The upper edge of the highest 10 %-band, below the scored windows' median band, in which
+        the cuts misclassify more than BAND_ERROR (sensor noise outweighs the fault there)."""
         scored = (y > 0) & (band > 0)
         wrong = self.predict(resid, band) != y
-        edges = np.geomspace(max(band[scored].min(), 1.0), band[scored].max() * 1.0001, 60)
+        median = np.median(band[scored])
+        edges = np.geomspace(max(band[scored].min(), 1.0), median, 40)
         q_min = edges[0]
         for lo, hi in zip(edges[:-1], edges[1:]):
             sel = scored & (band >= lo) & (band < hi)
             if sel.sum() >= 20 and wrong[sel].mean() > BAND_ERROR:
                 q_min = hi
-        return float(max(q_min, self.noise_margin * self.sigma_ / max(self.t1_, 1e-9) / 4))
+        return float(q_min)
 
     def predict(self, resid, band) -> np.ndarray:
         resid, band = np.asarray(resid, float), np.asarray(band, float)
@@ -317,16 +326,18 @@ class BalanceClassifier:
         keep = (y > 0) & (p > 0)
         return float(np.mean(p[keep] == y[keep])) if keep.any() else 0.0
 
-    def rows(self, slope_scale: float) -> np.ndarray:
-        """Class table rows (slope_lo, slope_hi, band_lo, band_hi, cls) in raw units."""
-        q_min = max(int(np.ceil(self.q_min_ * BAND_UNIT)), 1)
+    def rows(self, slope_scale: float, band_scale: float) -> np.ndarray:
+        """Class table rows (slope_lo, slope_hi, band_lo, band_hi, cls) in raw units; band_scale: mL/s
+        per band key unit."""
+        q_min = max(int(np.ceil(self.q_min_ / band_scale)), 1)
+        top = int(BAND_TOP / BAND_UNIT / band_scale)
         edges = [q_min]
-        while edges[-1] < BAND_TOP:
+        while edges[-1] < top:
             edges.append(max(int(np.ceil(edges[-1] * BAND_RATIO)), edges[-1] + 1))
         rows = [[SLOPE_MIN, SLOPE_MAX, 0, q_min - 1, 0]]
         for lo, nxt in zip(edges[:-1] + [edges[-1]], edges[1:] + [0x10000]):
             hi = nxt - 1
-            q = np.sqrt(lo * min(hi, BAND_TOP)) / BAND_UNIT          # mL/s at the band's geometric centre
+            q = np.sqrt(lo * min(hi, top)) * band_scale          # mL/s at the band's geometric centre
             t1 = int(np.ceil(self.t1_ * q / slope_scale))
             t2 = int(np.ceil(self.t2_ * q / slope_scale)) if np.isfinite(self.t2_) else SLOPE_MAX
             t1, t2 = min(max(t1, 1), SLOPE_MAX - 1), min(max(t2, t1 + 1), SLOPE_MAX)
@@ -339,6 +350,11 @@ class BalanceClassifier:
                 if t2 < SLOPE_MAX:
                     rows.append([SLOPE_MIN, -t2, lo, hi, 3])
         return np.array(rows, dtype=np.int64)
+
+
+def band_key_scale(mon: MonitorEntries) -> float:
+    """mL/s of average expected flow per unit of the class table's band key (band_w)."""
+    return (1 << BAND_SUM_SHIFT) / (mon.ring_len * BAND_UNIT)
 
 
 def balance_entries(mon: Monitor, terms: list[FlowTerm], rows=None, hold: int | None = None) -> MonitorEntries:
@@ -359,30 +375,34 @@ def monitor_windows(entries: MonitorEntries, runs: list[ClosedLoopRun]):
         probe.reset()
         _, (tr,) = probe.traces(run.msgs)
         ev = tr.evaluated
-        out.append((tr.resid[ev] * entries.slope_scale, tr.band[ev] / BAND_UNIT, run.truth(entries.name)[ev],
+        out.append((tr.resid[ev] * entries.slope_scale, tr.band[ev] * band_key_scale(entries),
+                    run.truth(entries.name)[ev],
                     np.full(int(ev.sum()), i)))
     return tuple(np.concatenate(a) for a in zip(*out))
 
 
 def choose_hold(entries: MonitorEntries, runs: list[ClosedLoopRun]) -> int:
-    """The smallest hold with no warning or error on any simulated normal stretch, doubled for margin
-    (at most 255); the configured hold if none of the candidates is silent."""
+    """The smallest hold under which the simulated runs raise no warning or error where normal is
+    expected and every scored error message that gets a verdict gets error, times HOLD_MARGIN (at most
+    255); the longest candidate if none is clean."""
     from civic.entries import Entries
     from civic.pipeline import SwitchModel
 
     for h in HOLDS:
         entries.hold = h
         model = SwitchModel(Entries([entries]))
-        silent = True
+        clean = True
         for run in runs:
             model.reset()
             _, (tr,) = model.traces(run.msgs)
-            if np.any((tr.code > 1) & (run.truth(entries.name) == 1)):
-                silent = False
+            truth = run.truth(entries.name)
+            err = truth == CLASS_CODES["error"]
+            if np.any((tr.code > 1) & (truth == 1)) or np.any(err & (tr.code > 0) & (tr.code != truth)):
+                clean = False
                 break
-        if silent:
-            return min(2 * h, 255)
-    return entries.hold
+        if clean:
+            return min(int(round(HOLD_MARGIN * h)), 255)
+    return HOLDS[-1]
 
 
 def train_balance(mon: Monitor, model: PlantModel, runs: list[ClosedLoopRun]) -> tuple[MonitorEntries, dict]:
@@ -391,7 +411,7 @@ def train_balance(mon: Monitor, model: PlantModel, runs: list[ClosedLoopRun]) ->
     probe = balance_entries(mon, terms, hold=1)
     resid, band, y, _ = monitor_windows(probe, runs)
     clf = BalanceClassifier().fit(resid, band, y)
-    entries = balance_entries(mon, terms, clf.rows(probe.slope_scale), hold=1)
+    entries = balance_entries(mon, terms, clf.rows(probe.slope_scale, band_key_scale(probe)), hold=1)
     entries.hold = choose_hold(entries, runs)
     info = {"ratio_cuts": [round(clf.t1_, 4), round(float(clf.t2_), 4)], "direction": int(clf.direction_),
             "residual_sigma_ml_per_s": round(clf.sigma_, 3), "min_band_ml_per_s": round(clf.q_min_, 2),

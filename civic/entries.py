@@ -23,6 +23,7 @@ OPERANDS = ("l1", "l2", "l3", "l4", "p1", "v1", "v2", "zero")   # what a flow te
 FLOW_COLUMNS = ("head_lo", "head_hi", "cmd_lo", "cmd_hi", "flow", "band")
 FLOW_MAX = 2**24            # |flow| bound, sixteenths of a mL per sample (pipeline.md 3b)
 BALANCE_SHIFT = 4           # balance monitors push (x << 4) - acc: sixteenths of a mL
+BAND_SUM_SHIFT = 7          # the class table sees the window's band sum >> 7 (pipeline.md 3b)
 SLOPE_MIN, SLOPE_MAX = -(2**31), 2**31 - 1
 LEVEL_MAX = 0xFFFF
 CLASS_COLUMNS = ("slope_lo", "slope_hi", "level_lo", "level_hi", "cls")

@@ -195,3 +195,148 @@ def plot_monitor(res: MonitorResult, path: Path, entries_monitor=None) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+# ------------------------------------------------------------------ closed-loop operation (issue: continuous)
+SETTLE_S = 60.0          # the minute after an onset is not scored
+DETECT_HOLD_S = 10.0     # a fault counts as detected once the correct class held this long
+
+
+@dataclass
+class TimelineRun:
+    """One monitor over one closed-loop run: per plant message time, expected and given class."""
+
+    label: str
+    cls: int                       # the class from onset + SETTLE_S on (normal for a fault-free run)
+    onset: float | None            # s from the run's first message; None: fault-free
+    t: np.ndarray                  # s from the run's first message
+    truth: np.ndarray              # expected class, 0 where not scored
+    code: np.ndarray               # the verdict
+    resid: np.ndarray              # mL/s: what the class table sees
+    levels: np.ndarray | None = None   # (n, 4) mL, for the timeline plot
+
+
+def expected_classes(t: np.ndarray, cls: int, onset: float | None) -> np.ndarray:
+    """normal before the onset, `cls` from onset + SETTLE_S on, 0 (not scored) in between."""
+    out = np.full(len(t), CLASS_CODES["normal"])
+    if onset is not None:
+        out[(t >= onset) & (t < onset + SETTLE_S)] = 0
+        out[t >= onset + SETTLE_S] = cls
+    return out
+
+
+def detection_delay(t: np.ndarray, code: np.ndarray, cls: int, onset: float) -> float | None:
+    """Seconds from the onset until the monitor's current class (its last verdict) has been `cls`
+    for DETECT_HOLD_S; None if that never happens."""
+    given = np.flatnonzero(code != 0)
+    if not len(given):
+        return None
+    last = np.zeros(len(code), np.int64)
+    last[given] = given
+    current = code[np.maximum.accumulate(last)]
+    current[: given[0]] = 0
+    ok = (current == cls) & (t >= onset)
+    starts = np.flatnonzero(ok & ~np.concatenate(([False], ok[:-1])))
+    ends = np.flatnonzero(ok & ~np.concatenate((ok[1:], [False])))
+    for s, e in zip(starts, ends):
+        if t[e] - t[s] >= DETECT_HOLD_S:
+            return float(t[s] + DETECT_HOLD_S - onset)
+    return None
+
+
+def closed_loop_summary(runs: list[TimelineRun], dt: float = 0.1) -> dict:
+    """The paper's table on the scored messages with a verdict, error recall, coverage (scored
+    messages with a verdict), false-alarm runs and verdict-minutes (warning/error where normal
+    is expected), detection delays, undetected faults."""
+    scored = [r.truth > 0 for r in runs]
+    given = [s & (r.code > 0) for s, r in zip(scored, runs)]
+    true = np.concatenate([r.truth[g] for r, g in zip(runs, given)]) if runs else np.zeros(0, int)
+    pred = np.concatenate([r.code[g] for r, g in zip(runs, given)]) if runs else np.zeros(0, int)
+    s = score(true, pred)
+    n_scored = sum(int(x.sum()) for x in scored)
+    s["coverage"] = float(sum(int(g.sum()) for g in given) / n_scored) if n_scored else 0.0
+    alarms = [int(np.sum((r.truth == 1) & (r.code > 1))) for r in runs]
+    s["false_alarm_runs"] = sum(1 for a in alarms if a)
+    s["false_alarm_verdict_minutes"] = sum(alarms) * dt / 60.0
+    delays = {r.label: detection_delay(r.t, r.code, r.cls, r.onset) for r in runs
+              if r.onset is not None and r.cls != CLASS_CODES["normal"]}
+    s["detection_delay_s"] = delays
+    found = [d for d in delays.values() if d is not None]
+    s["max_detection_delay_s"] = max(found) if found else None
+    s["undetected_runs"] = sum(1 for d in delays.values() if d is None)
+    s["runs"] = len(runs)
+    return s
+
+
+def evaluate_closed_loop(out: str | Path, labels: list[dict], config: MonitorConfig | Entries
+                         ) -> dict[str, list[TimelineRun]]:
+    """Per monitor, every labelled closed-loop run (labels with an onset_s column) as it saw it."""
+    out = Path(out)
+    if not out.exists():
+        raise CivicError(f"{out}: no such file or directory")
+    files = {r["file"] for r in labels}
+    single = out.is_file() and len(files) == 1
+    names = [m.name for m in config.monitors]
+    probe = config if isinstance(config, Entries) else probe_entries(config, "lsq")
+    results: dict[str, list[TimelineRun]] = {n: [] for n in names}
+    cache = {}
+    for i, row in enumerate(labels):
+        path = find_output(out, row["file"], single)
+        if path is None:
+            continue
+        if row["monitor"] not in names:
+            raise CivicError(f"labels: monitor {row['monitor']!r} is not configured ({', '.join(names)})")
+        try:
+            onset = float(row["onset_s"]) if (row.get("onset_s") or "").strip() else None
+        except ValueError:
+            raise CivicError(f"labels: row {i + 2}: onset_s {row['onset_s']!r} is not a number") from None
+        if path not in cache:
+            cap = read_pcap(path, config.udp_port, config.plant_prefix)
+            cache[path] = (cap.messages, *SwitchModel(probe).traces(cap.messages))
+        msgs, idx, traces = cache[path]
+        m = names.index(row["monitor"])
+        sel = np.ones(len(idx), bool)
+        if row.get("src_ip"):
+            sel &= msgs["src"][idx] == ip_to_int(row["src_ip"])
+        rows = idx[sel]
+        t = msgs["t"][rows] - (msgs["t"][rows][0] if len(rows) else 0.0)
+        cls = CLASS_CODES[row["class"]]
+        tr = traces[m]
+        results[row["monitor"]].append(TimelineRun(
+            f"{row['file']} {row.get('src_ip', '')}".strip(), cls, onset, t, expected_classes(t, cls, onset),
+            monitor_verdict(msgs["verdict"][rows], m).astype(int), tr.resid[sel] * tr.monitor.slope_scale,
+            np.stack([msgs[k][rows] for k in ("l1", "l2", "l3", "l4")], axis=1)))
+    if not any(results.values()):
+        raise CivicError(f"{out}: none of the labelled recordings found there")
+    return results
+
+
+def plot_timeline(label: str, runs: dict[str, TimelineRun], path: Path) -> None:
+    """One closed-loop run: levels, each labelled monitor's residual and verdict over time."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colors = {0: "0.85", 1: "tab:green", 2: "tab:orange", 3: "tab:red"}
+    fig, axes = plt.subplots(1 + 2 * len(runs), 1, figsize=(13, 2.2 + 2.2 * 2 * len(runs)), sharex=True)
+    first = next(iter(runs.values()))
+    for j, name in enumerate(("L1", "L2", "L3")):
+        axes[0].plot(first.t, first.levels[:, j] / 1000.0, lw=0.7, label=name)
+    axes[0].set(ylabel="volume (L)", title=label)
+    axes[0].legend(loc="upper right", ncols=3)
+    for k, (mon, r) in enumerate(runs.items()):
+        ax_r, ax_v = axes[1 + 2 * k], axes[2 + 2 * k]
+        ev = r.code != 0
+        ax_r.plot(r.t, np.where(ev, r.resid, np.nan), lw=0.6, color="k")
+        ax_r.set(ylabel=f"{mon}\nresidual (mL/s)")
+        ax_v.scatter(r.t, r.code, c=[colors[int(c)] for c in r.code], s=2)
+        ax_v.plot(r.t, r.truth, lw=1, color="tab:blue", alpha=0.5, label="expected (0: not scored)")
+        ax_v.set(ylabel=f"{mon}\nverdict", yticks=[0, 1, 2, 3], yticklabels=["-", "normal", "warning", "error"])
+        ax_v.legend(loc="upper left")
+        if r.onset is not None:
+            for ax in (axes[0], ax_r, ax_v):
+                ax.axvline(r.onset, color="tab:red", lw=0.8, ls="--")
+    axes[-1].set(xlabel="time in recording (s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)

@@ -60,7 +60,7 @@ ACTION_SET_EGRESS = f"{CONTROL}.set_egress"
 ACTION_SET_MONITORED = f"{CONTROL}.set_monitored"
 ACTION_SET_PLANT = f"{CONTROL}.set_plant"
 REGISTER_LAST_SEQ = f"{CONTROL}.last_seq"
-MONITOR_REGISTERS = ("ring", "ptr", "run", "s0", "s1", "last_class", "acc", "cand", "hold")
+MONITOR_REGISTERS = ("ring", "ptr", "run", "s0", "s1", "last_class", "acc", "accb", "ringb", "cand", "hold")
 COUNTER_VERDICTS = "verdicts"       # monK.verdicts: packets per cell slot * 4 + class
 DIGEST_VERDICT_CHANGE = "verdict_change_t"   # one per message on which a verdict changes
 SIGNAL_CODES = {"l1": 0, "l2": 1, "l3": 2, "l4": 3}
@@ -930,7 +930,7 @@ def clear_updates(schema: P4Schema, k: int, ring_cells: int, slots=range(MAX_PLA
         reg = schema.registers.get(mon(k, r))
         if reg is None:
             continue
-        if r == "ring":
+        if r in ("ring", "ringb"):
             cells = [s * stride + i for s in slots for i in range(min(ring_cells, stride))]
         else:
             cells = list(slots)

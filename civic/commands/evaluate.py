@@ -26,10 +26,12 @@ def run(args) -> int:
 
     labels = read_labels(args.labels)
     config = load_entries(args.entries) if args.entries else load_monitors(args.monitors)
-    results = evaluate(args.out, labels, config)
     out = Path(args.out)
     plot_dir = Path(args.plot_dir) if args.plot_dir else (
         Path(args.json).parent if args.json else (out if out.is_dir() else out.parent))
+    if "onset_s" in labels[0]:
+        return run_closed_loop(args, labels, config, plot_dir)
+    results = evaluate(args.out, labels, config)
     plot_dir.mkdir(parents=True, exist_ok=True)
     report = {"monitors": {}}
     for mon in config.monitors:
@@ -45,6 +47,39 @@ def run(args) -> int:
         delay = ", ".join(f"{k} {v:.1f} s" for k, v in s["detection_delay_s"].items() if v is not None)
         console.print(f"coverage {s['coverage']:.3f}   detection delay: {delay or 'n/a'}   "
                       f"undetected runs: {s['undetected_runs']}   plot: {png}\n")
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
+    return 0
+
+
+def run_closed_loop(args, labels, config, plot_dir: Path) -> int:
+    """Closed-loop labels (one row per run and monitor, with onset_s): scores over time, a timeline per run."""
+    from civic.evaluate import closed_loop_summary, evaluate_closed_loop, plot_timeline
+    from civic.report import console, score_table
+
+    results = evaluate_closed_loop(args.out, labels, config)
+    plot_dir.mkdir(parents=True, exist_ok=True)
+    report = {"monitors": {}, "timelines": {}}
+    for name, runs in results.items():
+        if not runs:
+            continue
+        s = closed_loop_summary(runs)
+        report["monitors"][name] = s
+        console.print(score_table(f"{name} (closed loop, {len(runs)} runs)", s))
+        delay = s["max_detection_delay_s"]
+        console.print(f"error recall {s['classes']['error']['recall']:.3f}   coverage {s['coverage']:.3f}   "
+                      f"false-alarm runs {s['false_alarm_runs']} ({s['false_alarm_verdict_minutes']:.2f} "
+                      f"verdict-min)   detection delay max {'n/a' if delay is None else f'{delay:.1f} s'}   "
+                      f"undetected {s['undetected_runs']}\n")
+    by_run: dict[str, dict] = {}
+    for name, runs in results.items():
+        for r in runs:
+            by_run.setdefault(r.label, {})[name] = r
+    for label, runs in by_run.items():
+        png = plot_dir / f"timeline_{Path(label.split()[0]).stem}{'_' + label.split()[1] if ' ' in label else ''}.png"
+        plot_timeline(label, runs, png)
+        report["timelines"][label] = str(png)
+    console.print(f"timelines: {len(by_run)} PNG in {plot_dir}")
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
     return 0

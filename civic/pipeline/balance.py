@@ -3,13 +3,15 @@
 Each flow term is a range table on (head, cmd) = (f[plus] - f[minus] mod 2^16, f[command]),
 whose entry gives the expected net inflow of one sample period (sixteenths of a mL) and a band
 contribution; the terms are summed, the sum accumulated per plant, and the ring gets
-z = (x << 4) - acc, so the monitor's slope over z is the balance residual.
+z = (x << 4) - acc, so the monitor's slope over z is the balance residual; the bands are
+summed over the same window (accb and its ring) for the class table's second key.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from civic.entries import BALANCE_SHIFT, FlowTerm
+from civic.entries import BALANCE_SHIFT, BAND_SUM_SHIFT, FlowTerm
+from civic.pipeline.classification import range_table
 
 U16, U32 = 0xFFFF, 0xFFFFFFFF
 
@@ -30,13 +32,11 @@ def keys(fields: dict, term: FlowTerm) -> tuple[np.ndarray, np.ndarray]:
 def flow(fields: dict, term: FlowTerm) -> tuple[np.ndarray, np.ndarray]:
     """The term's table lookup: (flow, band) of the entry holding (head, cmd); a miss gives (0, 0)."""
     head, cmd = keys(fields, term)
-    f = np.zeros(head.shape, np.int64)
-    b = np.zeros(head.shape, np.int64)
-    for hlo, hhi, clo, chi, fl, bd in term.rows:
-        hit = (head >= hlo) & (head <= hhi) & (cmd >= clo) & (cmd <= chi)
-        f[hit] = fl
-        b[hit] = bd
-    return f, b
+    if not len(term.rows):
+        return np.zeros(head.shape, np.int64), np.zeros(head.shape, np.int64)
+    hit = range_table(term.rows, 2).lookup(head, cmd)
+    return (np.where(hit >= 0, term.rows[hit, 4], 0).astype(np.int64),
+            np.where(hit >= 0, term.rows[hit, 5], 0).astype(np.int64))
 
 
 def expected(fields: dict, terms: list[FlowTerm]) -> tuple[np.ndarray, np.ndarray]:
@@ -58,3 +58,15 @@ def pushed(x, acc):
 def accumulate(e: np.ndarray) -> np.ndarray:
     """acc after each message of one plant's stream, starting from 0 (modulo 2^32)."""
     return (np.cumsum(np.asarray(e, np.int64).astype(np.uint64), dtype=np.uint64) & np.uint64(U32)).astype(np.int64)
+
+
+def window_band(accb, oldb):
+    """band_w: the band summed over the ring's R messages (accb now minus R messages ago), >> 7."""
+    return ((np.asarray(accb, np.int64) - np.asarray(oldb, np.int64)) & U32) >> BAND_SUM_SHIFT
+
+
+def window_bands(band: np.ndarray, ring_len: int) -> np.ndarray:
+    """band_w after each message of one plant's stream from an empty ring (vectorized)."""
+    accb = accumulate(band)
+    old = np.concatenate((np.zeros(ring_len, np.int64), accb))[:len(accb)]
+    return window_band(accb, old)

@@ -2,12 +2,45 @@
 control/monitor.p4 (and of the aux difference in control/signal_select.p4)."""
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from civic.config import PRECONDITION_FIELDS
 
 SLOPE_BIAS = 0x80000000
 HOLD_MAX = 255
+
+
+class RangeTable:
+    """A range-match table of disjoint entries on k keys: a packet hits at most one entry, so the
+    lookup is a binary search per key over the entries' edges into a grid of entry indices (the
+    P4 table's result whatever the priorities; -1 on a miss)."""
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray):
+        lo, hi = np.atleast_2d(np.asarray(lo, np.int64)), np.atleast_2d(np.asarray(hi, np.int64))
+        self.edges = [np.unique(np.concatenate((lo[:, j], hi[:, j] + 1))) for j in range(lo.shape[1])]
+        self.grid = np.full([len(e) + 1 for e in self.edges], -1, np.int64)
+        for r in range(len(lo)):
+            cells = tuple(slice(int(np.searchsorted(e, lo[r, j], "right")), int(np.searchsorted(e, hi[r, j], "right")) + 1)
+                          for j, e in enumerate(self.edges))
+            self.grid[cells] = r
+
+    def lookup(self, *keys) -> np.ndarray:
+        """Index of the entry holding each key tuple, -1 where none does."""
+        return self.grid[tuple(np.searchsorted(e, np.asarray(k, np.int64), "right") for e, k in zip(self.edges, keys))]
+
+
+@lru_cache(maxsize=64)
+def _table(rows: bytes, n: int, keys: int) -> RangeTable:
+    a = np.frombuffer(rows, np.int64).reshape(n, -1)
+    return RangeTable(a[:, 0:2 * keys:2], a[:, 1:2 * keys:2])
+
+
+def range_table(rows: np.ndarray, keys: int) -> RangeTable:
+    """The RangeTable of rows whose first 2*keys columns are (lo, hi) per key (cached by content)."""
+    rows = np.ascontiguousarray(rows, np.int64)
+    return _table(rows.tobytes(), len(rows), keys)
 
 
 def qualified(fields: dict, ranges: list[tuple[int, int]]) -> np.ndarray:
@@ -27,10 +60,10 @@ def aux(fields: dict, plus: str, minus: str) -> np.ndarray:
 def compensate(aux_value, offsets: np.ndarray) -> np.ndarray:
     """Compensate table lookup on aux: the offset of the entry whose range holds it, 0 on a miss."""
     a = np.asarray(aux_value, dtype=np.int64)
-    out = np.zeros(a.shape, dtype=np.int64)
-    for lo, hi, off in offsets:
-        out[(a >= lo) & (a <= hi)] = off
-    return out
+    if not len(offsets):
+        return np.zeros(a.shape, dtype=np.int64)
+    hit = range_table(offsets, 1).lookup(a)
+    return np.where(hit >= 0, np.asarray(offsets, np.int64)[hit, 2], 0)
 
 
 def slope_key(slope):
@@ -41,12 +74,12 @@ def slope_key(slope):
 def classify(slope, level, classes: np.ndarray, default_class: int) -> np.ndarray:
     """Class table lookup on (slope_key, level); a miss gives default_class."""
     key = slope_key(slope)
-    level = np.asarray(level, dtype=np.int64)
-    out = np.full(key.shape, default_class, dtype=np.int64)
-    for lo, hi, llo, lhi, cls in classes:
-        hit = (key >= slope_key(lo)) & (key <= slope_key(hi)) & (level >= llo) & (level <= lhi)
-        out[hit] = cls
-    return out
+    if not len(classes):
+        return np.full(key.shape, default_class, dtype=np.int64)
+    rows = np.asarray(classes, np.int64).copy()
+    rows[:, 0], rows[:, 1] = slope_key(rows[:, 0]), slope_key(rows[:, 1])   # ranges on the biased key
+    hit = range_table(rows, 2).lookup(key, np.asarray(level, dtype=np.int64))
+    return np.where(hit >= 0, rows[hit, 4], default_class)
 
 
 def next_hold(cand: int, hold: int, c_raw: int) -> tuple[int, int]:

@@ -56,6 +56,8 @@ class SwitchModel:
         self.last_cmd = {c: np.zeros(self.plants, dtype=np.int64) for c in plant_lookup.COMMANDS}
         n = len(self.entries.monitors)
         self.acc = np.zeros((n, self.plants), dtype=np.int64)
+        self.accb = np.zeros((n, self.plants), dtype=np.int64)
+        self.ringb = [np.zeros((self.plants, m.ring_len), dtype=np.int64) for m in self.entries.monitors]
         self.cand = np.zeros((n, self.plants), dtype=np.int64)
         self.hold = np.zeros((n, self.plants), dtype=np.int64)
         self.rings = [data_collection.RingState(self.plants, m.ring_len) for m in self.entries.monitors]
@@ -83,7 +85,11 @@ class SwitchModel:
                 e, band = balance.expected(fields, mon.terms)
                 self.acc[m, slot] = (int(self.acc[m, slot]) + int(e)) & data_collection.U32
                 z = int(balance.pushed(x, self.acc[m, slot]))
-                key2 = int(band)
+                self.accb[m, slot] = (int(self.accb[m, slot]) + int(band)) & data_collection.U32
+                p = int(ring.ptr[slot])                       # the ring's cell, before the push moves it
+                oldb = int(self.ringb[m][slot, p])
+                self.ringb[m][slot, p] = self.accb[m, slot]
+                key2 = int(balance.window_band(self.accb[m, slot], oldb))
             old = ring.push(slot, z)
             s = int(slope.estimate(mon.estimator, z, old, ring.s0[slot], ring.s1[slot], mon.window))
             a = classification.aux(fields, *mon.aux_signals)
@@ -139,10 +145,12 @@ class SwitchModel:
             x = fields[mon.signal]
             z, key2 = x, x
             if mon.kind == "balance":
-                e, key2 = balance.expected(fields, mon.terms)
+                e, band = balance.expected(fields, mon.terms)
                 z = np.zeros(len(order), dtype=np.int64)
+                key2 = np.zeros(len(order), dtype=np.int64)
                 for sp in spans:
                     z[sp] = balance.pushed(x[sp], balance.accumulate(e[sp]))
+                    key2[sp] = balance.window_bands(band[sp], mon.ring_len)
             run = np.zeros(len(order), dtype=np.int64)
             s = np.zeros(len(order), dtype=np.int64)
             for sp in spans:

@@ -322,6 +322,28 @@ def make_schedule(duration: float, rng, tests: bool = True) -> list:
     return ops
 
 
+def operation_schedule(duration: float, rng, hold=(40.0, 90.0)) -> list:
+    """Setpoints changing every `hold` s with one drain test and one fill test at random times
+    (as in the recorded 15-minute closed-loop runs)."""
+    ops = [(0.0, "setpoints", random_setpoint(rng))]
+    kinds = ["drain_test", "fill_test"]
+    rng.shuffle(kinds)
+    first = rng.uniform(60.0, max(duration / 2 - 100.0, 61.0))
+    tests = [first, rng.uniform(first + 180.0, max(duration - 150.0, first + 181.0))]
+    t, k = 0.0, 0
+    while True:
+        t += rng.uniform(*hold)
+        if t >= duration:
+            break
+        if k < 2 and t >= tests[k]:
+            ops.append((round(t, 1), kinds[k], None))
+            k += 1
+            t += 100.0
+            continue
+        ops.append((round(t, 1), "setpoints", random_setpoint(rng)))
+    return ops
+
+
 def schedule_from_operation(operation: list) -> list:
     """A truth.json "operation" list -> a schedule for run_closed_loop.
 
@@ -381,7 +403,7 @@ class Stepper:
 def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc", seed=None,
                     noise: bool = True, schedule=None, x0=None, progress=None,
                     controller_model: PlantModel | None = None,
-                    onset: tuple[float, PlantModel] | None = None) -> ClosedLoopResult:
+                    onset: tuple[float, PlantModel] | None = None, pi_gains=None) -> ClosedLoopResult:
     """Simulate the plant under MPC/PI with the supervisor's setpoints and tests.
 
     `model` is the simulated plant (it may carry faults: leaks, offsets...);
@@ -389,6 +411,7 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     so a concealed fault is simulated by passing the nominal model here.
     `onset` = (t, faulted): from time t on the plant runs with `faulted`'s
     coefficients (same structure, e.g. a manual valve closed mid-run).
+    `pi_gains` = (kp, ti) of the PI loops (default PIController's).
     """
     import time as _time
 
@@ -416,7 +439,7 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     if controller not in ("mpc", "pi"):
         raise CivicError(f"unknown controller {controller!r} (mpc, pi)")
     cmodel = controller_model if controller_model is not None else model
-    ctrl = LinearMPC(cmodel, sp) if controller == "mpc" else PIController(cmodel, sp)
+    ctrl = LinearMPC(cmodel, sp) if controller == "mpc" else PIController(cmodel, sp, *(pi_gains or ()))
     iin = [model.input_names.index(c) for c in COMMANDS]
     u_full = np.zeros(len(model.inputs))
     u_full[iin] = us

@@ -65,6 +65,8 @@
 #define OPERAND_ZERO 7
 // Balance monitors push (x << BALANCE_SHIFT) - acc: sixteenths of a mL.
 #define BALANCE_SHIFT 4
+// The class table's band key is the window's band sum >> BAND_SUM_SHIFT.
+#define BAND_SUM_SHIFT 7
 // hold saturates at 255 (8-bit register).
 #define HOLD_MAX 255
 

@@ -28,8 +28,8 @@
  *   CivicIngress.monK.{config, set_config, precondition, qualify,
  *                      disqualify, compensate, set_offset, flow0,
  *                      set_flow0, flow1, set_flow1, classify, set_class,
- *                      ring, ptr, run, s0, s1, last_class, acc, cand,
- *                      hold,
+ *                      ring, ptr, run, s0, s1, last_class, acc, accb,
+ *                      ringb, cand, hold,
  *                      verdicts (counter)}                  K = 0..3
  *   digest verdict_change_t
  */

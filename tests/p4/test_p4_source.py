@@ -216,7 +216,7 @@ def test_tna_derived_names():
                                 ("set_normal", "action"), ("set_warning", "action"), ("set_error", "action"))}
     # the balance monitors' objects (command steps, flow terms, accumulator, hold) are v1model's
     # alone: the TNA default profile runs the two test monitors (p4src/README.md)
-    balance = re.compile(r"CivicIngress\.(last_[pv]\d|mon\d\.(flow\d|set_flow\d|acc|cand|hold))$")
+    balance = re.compile(r"CivicIngress\.(last_[pv]\d|mon\d\.(flow\d|set_flow\d|acc|accb|ringb|cand|hold))$")
     assert names == {k: v for k, v in v1.items()
                      if not re.match(rf"CivicIngress\.mon([{n}-9])\.", k) and not balance.match(k)} | split
 
@@ -244,13 +244,13 @@ def test_register_sizes_and_widths():
     d = defines()
     src = source(V1 / "civic.p4")
     widths = {"ring": 32, "ptr": 8, "run": 8, "s0": 32, "s1": 32, "last_seq": 32, "acc": 32, "cand": 2,
-              "hold": 8, "last_p1": 16}
+              "hold": 8, "last_p1": 16, "accb": 32, "ringb": 32}
     for reg, w in widths.items():
         m = re.search(rf"register<bit<(\d+)>>\((\w+)\)\s+{reg}\s*;", src)
         assert m, reg
         assert int(m.group(1)) == w, reg
         size = d[m.group(2)]
-        assert size == (d["MAX_PLANTS"] * d["MAX_WINDOW"] if reg == "ring" else d["MAX_PLANTS"]), reg
+        assert size == (d["MAX_PLANTS"] * d["MAX_WINDOW"] if reg in ("ring", "ringb") else d["MAX_PLANTS"]), reg
 
 
 def test_constants_match_python_and_docs():

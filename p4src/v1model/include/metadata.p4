@@ -44,6 +44,8 @@ struct monitor_md_t {
     bit<16> band0;
     bit<16> band1;
     bit<32> acc;            // accumulated expected inflow after this message
+    bit<32> accb;           // accumulated band after this message
+    bit<32> oldb;           // accb R messages ago (the ringb cell overwritten)
     bit<32> z;              // what the ring gets: x, or (x << 4) - acc
     bit<16> aux_a;          // x[aux_plus], x[aux_minus]
     bit<16> aux_b;

@@ -66,6 +66,8 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
     register<bit<32>>(MAX_PLANTS) s1;
     register<bit<2>>(MAX_PLANTS) last_class;
     register<bit<32>>(MAX_PLANTS) acc;      // balance: accumulated expected inflow
+    register<bit<32>>(MAX_PLANTS) accb;     // balance: accumulated band
+    register<bit<32>>(RING_CELLS) ringb;    // balance: accb of the last R messages (ring's cells)
     register<bit<2>>(MAX_PLANTS) cand;      // hold: the table's last result ...
     register<bit<8>>(MAX_PLANTS) hold;      // ... and for how many messages
     counter(VERDICT_COUNTER_CELLS, CounterType.packets) verdicts;
@@ -225,7 +227,10 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
             }
             run.write(slot, m.run);
 
-            // balance monitors: z = (x << 4) - acc, acc += expected inflow
+            // balance monitors: z = (x << 4) - acc, acc += expected inflow;
+            // the class table's band key: the bands summed over the window
+            ptr.read(m.ptr, slot);
+            m.ring_idx = (slot << MAX_WINDOW_LOG2) | (bit<32>)(m.ptr & (MAX_WINDOW - 1));
             m.z = (bit<32>)m.x;
             m.key2 = m.x;
             if (m.balance == 1) {
@@ -239,12 +244,15 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
                 m.acc = m.acc + m.flow0 + m.flow1;
                 acc.write(slot, m.acc);
                 m.z = ((bit<32>)m.x << BALANCE_SHIFT) - m.acc;
-                m.key2 = m.band0 + m.band1;
+                accb.read(m.accb, slot);
+                m.accb = m.accb + (bit<32>)(m.band0 + m.band1);
+                accb.write(slot, m.accb);
+                ringb.read(m.oldb, m.ring_idx);
+                ringb.write(m.ring_idx, m.accb);
+                m.key2 = ((m.accb - m.oldb) >> BAND_SUM_SHIFT)[15:0];
             }
 
             // ring buffer: swap z in, old out; advance the pointer modulo R
-            ptr.read(m.ptr, slot);
-            m.ring_idx = (slot << MAX_WINDOW_LOG2) | (bit<32>)(m.ptr & (MAX_WINDOW - 1));
             ring.read(m.old, m.ring_idx);
             ring.write(m.ring_idx, m.z);
             if (m.ptr + 1 == m.ring_len) {

@@ -165,7 +165,7 @@ struct ig_metadata_t {
     bit<16>      dv2;
     bit<16>      head23;     // (l2 - l3) mod 2^16: balance_t3's pipe23 head
     bit<16>      head12;     // (l1 - l2) mod 2^16: balance_t1's V1 head
-    bit<16>      zero;       // the operand "zero" (never written)
+    bit<16>      zero;       // the operand "zero" (0, set by the parser)
     balance_md_t mon2;
     balance_md_t mon3;
 #else

@@ -37,6 +37,19 @@ parser CivicIngressParser(packet_in pkt,
         meta.monitored = 0;
         meta.in_prefix = 0;
         meta.gap = 0;
+#ifdef CIVIC_PROFILE_BALANCE
+        // the flow terms add to e and band (balance.p4); w and chg gate
+        // last_class and the digest; zero is the operand "zero"
+        meta.mon2.e = 0;
+        meta.mon2.band = 0;
+        meta.mon2.w = 0;
+        meta.mon2.chg = 0;
+        meta.mon3.e = 0;
+        meta.mon3.band = 0;
+        meta.mon3.w = 0;
+        meta.mon3.chg = 0;
+        meta.zero = 0;
+#endif
         transition parse_ethernet;
     }
 

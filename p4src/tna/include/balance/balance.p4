@@ -133,7 +133,7 @@ control BalanceMonitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_pre
 
     // ------------------------------------------------------------ flow terms (3b)
     // e = flow0 + flow1, band = band0 + band1 (e and band start at 0: the
-    // parser zero-initialises the metadata); the term keyed on message
+    // ingress parser sets them, parser.p4); the term keyed on message
     // fields runs in stage 0 and the one keyed on a head difference adds to
     // it in stage 1. A miss adds (0, 0).
     action set_flow0(bit<32> flow, bit<16> band) {

@@ -23,8 +23,9 @@
  *
  * Differences from pipeline.md 3 / 3b beyond those of civic.p4 (details in
  * include/balance/balance.p4 and p4src/README.md):
- *  - W = R = 100, H, the signal and the flow terms' operands are fixed at
- *    compile time (include/config.p4);
+ *  - W = R = 100, the signal and the flow terms' operands are fixed at
+ *    compile time (include/config.p4); the hold H comes from set_config
+ *    (hold_min, 2..255);
  *  - the lsq slope is kept in a register of its own (slope + 2^31), not
  *    recomputed from s1: same value, three stages shorter;
  *  - cand and hold are one register pair; hold saturates at 65535;
@@ -36,7 +37,8 @@
  *      head differences, x << 4, the flow term on message fields
  *      (mon2.flow1 V2 on (l3, v2); mon3.flow0 P1 on (zero, p1))
  *   1  the flow term on a head difference (mon2.flow0 pipe23 on (l2 - l3,
- *      zero); mon3.flow1 V1 on (l1 - l2, v1)), ptr, last_v1, last_v2
+ *      zero); mon3.flow1 V1 on (l1 - l2, v1)), ptr, last_v1, last_v2,
+ *      H - 1 (from set_config's hold_min)
  *   2  acc, last_seq, last_p1, band widened
  *   3  z = (x << 4) - acc', accb, command steps (cmd |-| last, last |-| cmd)
  *   4  ring (returns old + z), ringb (returns oldb), 2 * z, command steps (OR)
@@ -130,11 +132,11 @@ control CivicIngress(inout ig_headers_t hdr,
     CommandSteps() command_steps;
     CommandStepsAbs() command_steps_abs;
 
-    // Balance slots (include/balance/balance.p4, include/config.p4): W, R, H, and
+    // Balance slots (include/balance/balance.p4, include/config.p4): W, R, and
     // which flow term is keyed on message fields only (it runs first, in
     // stage 0). The operands are bound below: x, head0, cmd0, head1, cmd1.
-    BalanceMonitor(BAL_WINDOW, BAL_RING_LEN, BAL2_HOLD, true) mon2;
-    BalanceMonitor(BAL_WINDOW, BAL_RING_LEN, BAL3_HOLD, false) mon3;
+    BalanceMonitor(BAL_WINDOW, BAL_RING_LEN, true) mon2;
+    BalanceMonitor(BAL_WINDOW, BAL_RING_LEN, false) mon3;
 
     // the head differences of the flow terms (16-bit modular, pipeline.md 3b)
     CIVIC_STEP(heads,

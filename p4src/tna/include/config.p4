@@ -88,9 +88,8 @@
 //                       flow1 = V1 (head l1 - l2, cmd v1)
 //    (the band comes from whichever term's entries carry it: band = band0 +
 //    band1 as on v1model);
-//  - the hold H, 2..255 (configs/monitors.toml: 20 for both; civic train
-//    may choose another: the entries' hold must equal BALk_HOLD, as their
-//    window must equal BAL_WINDOW).
+//  (the hold H is set_config's hold_min at run time, 2..255; the entries'
+//  window must equal BAL_WINDOW).
 #ifdef CIVIC_PROFILE_BALANCE
 #define BAL_WINDOW 100
 #define BAL_RING_LEN 100
@@ -108,8 +107,6 @@
 #else
 #define TNA_BAND_SUM_SHIFT 7
 #endif
-#define BAL2_HOLD 20
-#define BAL3_HOLD 20
 #endif
 
 // Flow terms (pipeline.md 3b) are 2-D range tables in TCAM: each (head, cmd)

@@ -99,6 +99,8 @@ struct verdict_change_tna_t {
 // stage; the 32-bit ones are pinned to 32-bit containers (civic.p4).
 struct balance_md_t {
     bit<1>  enabled;        // set_config
+    bit<16> hold_min;       // set_config: H
+    bit<16> hold_m1;        // H - 1
     bit<1>  q;              // precondition (l1..l4) holds
     bit<1>  q_cmd;          // precondition_cmd (p1 v1 v2 dp1 dv1 dv2) holds
     bit<8>  run;            // run counter after this message

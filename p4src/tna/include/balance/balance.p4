@@ -12,10 +12,11 @@
  * band), classify, registers ring ptr run s0 acc accb ringb last_class),
  * except where Tofino's rules force a difference (p4src/README.md, "The
  * balance profile"):
- *  - W = R = 100, H, the signal x and the flow terms' operands are
+ *  - W = R = 100, the signal x and the flow terms' operands are
  *    compile-time constants (the operands are the control's `in`
  *    parameters x, head0, cmd0, head1, cmd1; include/config.p4). set_config
- *    keeps v1model's fifteen parameters; only `enabled` is used;
+ *    keeps v1model's fifteen parameters; `enabled` and `hold_min` (H) are
+ *    used;
  *  - precondition is split as in the test-monitor profile: precondition
  *    (l1..l4) and precondition_cmd (p1 v1 v2 dp1 dv1 dv2: six 16-bit range
  *    keys, the most bf-p4c fits in one table);
@@ -57,6 +58,8 @@
  * RegisterAction of their class C (a constant, as last_class's in
  * monitor.p4):
  *     w = (cand == C && hold >= H - 1) ? C : 0     (hold after >= H, H >= 2)
+ * with H = set_config's hold_min (H - 1 computed in stage 0 or 1; H = 1
+ * would need a third condition: it acts as H = 2);
  *     hold = cand == C ? hold |+| 1 : 1;  cand = C
  * w is the class written. hold is 16 bit here and saturates at 65535, not
  * 255: the written class only asks hold >= H <= 255, so it is the same.
@@ -67,7 +70,8 @@
  *
  * Dependent steps (stage plan in civic_balance.p4 and p4src/README.md):
  *   0 config, precondition, x16, the flow term on message fields
- *   1 the flow term on a head difference (e += flow, band += band), ptr
+ *   1 the flow term on a head difference (e += flow, band += band), ptr,
+ *     H - 1
  *   2 acc   3 z, accb   4 ring (old + z), ringb, 2 * z
  *   5 old, d, 3 * (z + old), accb - oldb, precondition_cmd
  *   6 s0 (s0 - old), 99 * (z + old), band_w   7 ndelta, run   8 slope
@@ -88,7 +92,7 @@ control BalanceMonitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_pre
                        in bit<16> x, in bit<16> head0, in bit<16> cmd0,
                        in bit<16> head1, in bit<16> cmd1,
                        inout balance_md_t m, inout bit<2> cls_out)
-                      (bit<8> c_window, bit<8> c_ring_len, bit<16> c_hold, bool c_flow1_first) {
+                      (bit<8> c_window, bit<8> c_ring_len, bool c_flow1_first) {
 
     Register<bit<32>, bit<15>>(RING_CELLS, 0) ring;
     Register<bit<8>, bit<8>>(MAX_PLANTS, 0) ptr;
@@ -113,14 +117,16 @@ control BalanceMonitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_pre
     Hash<bit<32>>(HashAlgorithm_t.IDENTITY) shift_s0;
 
     // ------------------------------------------------------------ config
-    // v1model's parameters; on TNA only `enabled` is used (the rest is fixed
-    // at compile time and must equal the constants of include/config.p4)
+    // v1model's parameters; on TNA only `enabled` and `hold_min` are used
+    // (the rest is fixed at compile time and must equal the constants of
+    // include/config.p4)
     action set_config(bit<1> enabled, bit<2> signal, bit<8> window,
                       bit<8> ring_len, bit<2> estimator, bit<1> balance,
                       bit<8> hold_min, bit<2> aux_plus, bit<2> aux_minus,
                       bit<3> f0_plus, bit<3> f0_minus, bit<3> f0_cmd,
                       bit<3> f1_plus, bit<3> f1_minus, bit<3> f1_cmd) {
         m.enabled = enabled;
+        m.hold_min = (bit<16>)hold_min;       // H, 2..255 (balance.p4: hold)
     }
 
     table config {
@@ -231,7 +237,7 @@ control BalanceMonitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_pre
                 v.hold = 1;                                                 \
             }                                                               \
             v.cand = C;                                                     \
-            if (before.cand == C && before.hold >= c_hold - 1) {            \
+            if (before.cand == C && before.hold >= m.hold_m1) {             \
                 rv = (bit<8>)before.cand;                                   \
             }                                                               \
         }                                                                   \
@@ -403,6 +409,8 @@ control BalanceMonitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_pre
     // ndelta = -delta = 2 * (s0 - old) - (W - 1) * (z + old)
     CIVIC_STEP(add_s0, m.ndelta = shift_s0.get({m.ns0[30:0], 1w0}) - m.a99;)
     CIVIC_STEP(write_cls, cls_out = m.w[1:0];)
+    // H - 1, what the hold RegisterActions compare the count before this message with
+    CIVIC_STEP(hold_less_one, m.hold_m1 = m.hold_min - 1;)
     // band_w = ((accb' - oldb) mod 2^32) >> 7: the last R bands summed, / 128
     CIVIC_STEP(widen_band, m.band32 = widen_b.get({m.band});)
     CIVIC_STEP(band_sum, m.bdiff = m.accb - m.oldb;)
@@ -413,6 +421,7 @@ control BalanceMonitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_pre
         config.apply();
         precondition.apply();
         widen_x.apply();
+        hold_less_one.apply();
         // the term on message fields first: it needs no head step
         if (c_flow1_first) {
             flow1.apply();

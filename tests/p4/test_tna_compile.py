@@ -558,3 +558,16 @@ def test_balance_steps_match_the_model(hold):
         hold_t = min(hold_t + 1, 0xFFFF) if cand == c_raw else 1
         cand = c_raw
         assert out == written, n
+
+
+@needs_bf_p4c
+def test_balance_verdict_word_bits(build_balance):
+    """Egress writes the verdict word {cls1, cls0, 4 zero bits}: balance_t3 (bridged cls0) in bits
+    5..4, balance_t1 (cls1) in bits 7..6, monitors 0 and 1 (bits 3..0) not evaluated."""
+    text = bfa(build_balance)
+    block = text[text.index("p4: { name: CivicEgress.verdict.write_verdict"):]
+    m = re.search(r"(\d+)\.\.(\d+): 0\s*\n\s*(\d+)\.\.(\d+): meta\.bridge\.cls0\s*\n\s*(\d+)\.\.(\d+): meta\.bridge\.cls1",
+                  block[:3000])
+    assert m, "verdict word hash layout not found"
+    z_lo, z_hi, c0_lo, c0_hi, c1_lo, c1_hi = (int(v) - int(m.group(1)) for v in m.groups())
+    assert (z_lo, z_hi, c0_lo, c0_hi, c1_lo, c1_hi) == (0, 3, 4, 5, 6, 7)

@@ -571,3 +571,15 @@ def test_balance_verdict_word_bits(build_balance):
     assert m, "verdict word hash layout not found"
     z_lo, z_hi, c0_lo, c0_hi, c1_lo, c1_hi = (int(v) - int(m.group(1)) for v in m.groups())
     assert (z_lo, z_hi, c0_lo, c0_hi, c1_lo, c1_hi) == (0, 3, 4, 5, 6, 7)
+
+
+@needs_bf_p4c
+def test_balance_ring_indices_put_the_slot_in_the_high_bits(build_balance):
+    """ring and ringb share the cell slot * 128 + ptr (pipeline.md 3b: same cell and pointer)."""
+    text = bfa(build_balance)
+    for k in BALANCE_MONITORS:
+        found = re.findall(rf"hash \d+:\s*\n\s*(\d+)\.\.(\d+): meta\.mon{k}\.ptr\(0\.\.6\)\s*\n"
+                           rf"\s*(\d+)\.\.(\d+): meta\.slot", text)
+        assert len(found) >= 2, f"mon{k}: ring / ringb index hash layouts not found"
+        for p_lo, p_hi, s_lo, s_hi in (map(int, f) for f in found):
+            assert (p_hi - p_lo, s_lo - p_lo, s_hi - s_lo) == (6, 7, 7)

@@ -28,7 +28,7 @@ from civic.plant.model import PlantModel
 from civic.wire import CLASS_CODES, ip_to_int
 
 SAMPLE_RATE = 10.0                      # messages per second
-FLOW_UNIT = 1000.0 / SAMPLE_RATE * (1 << BALANCE_SHIFT)   # L/s -> sixteenths of a mL per sample
+FLOW_UNIT = 1000.0 / SAMPLE_RATE * (1 << BALANCE_SHIFT)   # L/s -> 1/64 mL per sample
 BAND_UNIT = 10.0                        # a flow term's band: expected flow in 0.1 mL/s
 TERM_REL_TOL = 0.02                     # a 1-D flow-table cell's flow stays within ±2 %
 TERM_REL_TOL_2D = 0.03                  # ... a 2-D cell's within ±3 % along each key
@@ -152,7 +152,7 @@ def term_spec(model: PlantModel, tank: str, component: str) -> TermSpec:
 
 def tabulate_term(spec: TermSpec, band: bool) -> FlowTerm:
     """A flow term's range table: cells within ±TERM_REL_TOL (or TERM_ABS_TOL), flow at the cell's
-    centre in sixteenths of a mL per sample, band = |flow| in 0.1 mL/s where `band`."""
+    centre in 1/64 mL per sample, band = |flow| in 0.1 mL/s where `band`."""
     tol_rel = TERM_REL_TOL if spec.command == "zero" or spec.head == ("zero", "zero") else TERM_REL_TOL_2D
     if spec.head == ("zero", "zero"):
         head_bins = [(0, 0xFFFF, 0.0)]
@@ -170,7 +170,7 @@ def tabulate_term(spec: TermSpec, band: bool) -> FlowTerm:
         cmd_bins = [(0, 0xFFFF, 0.0)]
     else:
         c = np.arange(1001, dtype=float)
-        ref = spec.head_max / 2.0 if spec.head != ("zero", "zero") else 0.0
+        ref = float(spec.head_max) if spec.head != ("zero", "zero") else 0.0     # the largest flows: the finest cells
         q = spec.flow(np.full(len(c), ref), c) * 1000.0
         cmd_bins = [(lo, 0xFFFF if hi == 1000 else hi, (lo + hi) / 2.0) for lo, hi in _segments(q, tol_rel, TERM_ABS_TOL)]
     hh = np.array([b[2] for b in head_bins])

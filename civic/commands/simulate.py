@@ -22,6 +22,10 @@ def register(sub) -> None:
     p.add_argument("--v0", type=float, help="start volume of T1..T3, L (drain 7.5, fill 3.0)")
     p.add_argument("--fault", metavar="vmN=C", help="manual valve closure, e.g. vm1=0.3 or vm2=warning")
     p.add_argument("--controller", choices=("mpc", "pi"), default="mpc")
+    p.add_argument("--onset", type=float, metavar="S",
+                   help="closed loop: the --fault comes on S seconds into the run (default: from the start); "
+                        "with --plants and no --fault, plants cycle through fault-free, vm1 warning/error, "
+                        "vm2 warning/error")
     p.add_argument("--duration", type=float, metavar="S", help="seconds (drain 18, fill 40, closed loop 600)")
     p.add_argument("--seed", type=int, help="random seed (noise, schedule)")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise: deterministic output")
@@ -32,7 +36,9 @@ def register(sub) -> None:
                         "normal, warning, error over the plants (default 1)")
     p.add_argument("-o", "--output", metavar="OUT.pcap|OUT.csv")
     p.add_argument("--plot", metavar="OUT.png")
-    p.add_argument("--labels", metavar="LABELS.csv", help="append a labels row (drain/fill)")
+    p.add_argument("--labels", metavar="LABELS.csv",
+                   help="append labels rows (drain/fill: one per run; closed loop with --onset: one per run and "
+                        "balance monitor, the format of traces/continuous/labels.csv)")
     p.add_argument("--schedule", metavar="TRUTH.json",
                    help="closed loop: setpoints and tests from a truth.json 'operation' list")
     p.add_argument("--truth", metavar="OUT.json", help="closed loop: write the operation log (truth.json style)")
@@ -79,14 +85,17 @@ def run(args) -> int:
 
     faults = parse_fault(args.fault)
     noise = not args.no_noise
+    if args.onset is not None and args.scenario != "closed-loop":
+        raise CivicError("--onset applies to closed-loop only")
     if args.scenario == "closed-loop":
         if args.v0 is not None:
             raise CivicError("--v0 applies to the drain and fill tests only")
-        if args.labels:
-            raise CivicError("--labels applies to the drain and fill tests only")
+        if args.labels and args.onset is None:
+            raise CivicError("--labels in closed loop needs --onset (the time the fault comes on)")
         from civic.plant.control import run_closed_loop
 
-        m = apply_faults(model, faults) if faults else model
+        m = apply_faults(model, faults) if faults and args.onset is None else model
+        onset = (args.onset, apply_faults(model, faults)) if args.onset is not None else None
         schedule, duration = None, args.duration
         if args.schedule:
             schedule, sched_dur = _load_schedule(args.schedule)
@@ -94,7 +103,7 @@ def run(args) -> int:
         duration = 600.0 if duration is None else duration
         with _progress(duration) as prog:
             res = run_closed_loop(m, duration, controller=args.controller, seed=args.seed, noise=noise,
-                                  progress=prog, controller_model=model, schedule=schedule)
+                                  progress=prog, controller_model=model, schedule=schedule, onset=onset)
         if args.truth:
             _write_truth(args.truth, res, args, faults, duration)
         t, signals = res.t, res.signals
@@ -109,7 +118,10 @@ def run(args) -> int:
         t = proc.t
         extra = f", v0 {proc.v0:g} L, closure {proc.closure:g}"
     write_recording(args.output, model, t, signals, args.src_ip, args.seed)
-    if args.labels:
+    if args.labels and args.scenario == "closed-loop":
+        for row in closed_loop_labels(Path(args.output).name, faults, args.onset, args.seed, args.src_ip):
+            append_label(args.labels, row)
+    elif args.labels:
         append_label(args.labels, label_row(Path(args.output).name, proc, args.seed, args.src_ip))
     if args.plot:
         _plot_run(args.plot, model, t, signals, f"{args.scenario} ({model.name})")
@@ -139,8 +151,11 @@ def _fleet(args, model) -> int:
         raise CivicError("--duration must be > 0")
     scenario, base_seed = args.scenario, args.seed if args.seed is not None else 0
     fixed = parse_fault(args.fault)
-    if scenario == "closed-loop" and (args.v0 is not None or args.labels or args.schedule or args.truth):
-        raise CivicError("--plants closed-loop takes no --v0, --labels, --schedule or --truth")
+    if scenario == "closed-loop" and (args.v0 is not None or args.schedule or args.truth):
+        raise CivicError("--plants closed-loop takes no --v0, --schedule or --truth")
+    if scenario == "closed-loop" and args.labels and args.onset is None:
+        raise CivicError("--labels in closed loop needs --onset (the time the fault comes on)")
+    cycle = [{}, {"vm1": 0.30}, {"vm1": 0.55}, {"vm2": 0.20}, {"vm2": 0.40}]
     valve = {"drain": "vm1", "fill": "vm2"}.get(scenario)
     times, frames, rows = [], [], []
     with progress_bar() as progress:
@@ -151,10 +166,15 @@ def _fleet(args, model) -> int:
                                {valve: FAULT_CLASSES[scenario][("normal", "warning", "error")[k % 3]]})
             if scenario == "closed-loop":
                 from civic.plant.control import run_closed_loop
-                m = apply_faults(model, faults) if faults else model
+                if args.onset is not None and not fixed:
+                    faults = cycle[k % len(cycle)]
+                m = apply_faults(model, faults) if faults and args.onset is None else model
+                onset = (args.onset, apply_faults(model, faults)) if args.onset is not None else None
                 res = run_closed_loop(m, args.duration or 600.0, controller=args.controller, seed=seed,
-                                      noise=not args.no_noise, controller_model=model)
+                                      noise=not args.no_noise, controller_model=model, onset=onset)
                 t, signals = res.t, res.signals
+                if args.labels:
+                    rows += closed_loop_labels(Path(args.output).name, faults, args.onset, seed, ip)
             else:
                 proc = make_procedure(model, scenario, args.v0, faults, args.duration)
                 t, signals = proc.t, run_procedure(proc, noise=not args.no_noise, seed=seed)
@@ -174,6 +194,23 @@ def _fleet(args, model) -> int:
     print(f"simulated {scenario} on {n} plants ({args.src_ip} .. {int_to_ip(first + n - 1)}): "
           f"{len(frames)} messages interleaved -> {args.output}")
     return 0
+
+
+def closed_loop_labels(file: str, faults: dict, onset: float, seed, src_ip: str) -> list[dict]:
+    """One row per balance monitor: the class it should report from the onset on (columns of
+    traces/continuous/labels.csv)."""
+    from civic.continuous import FAULTS
+
+    rows = []
+    for monitor, (valve, classes) in FAULTS.items():
+        closure = faults.get(valve, 0.0)
+        cls = "normal" if not closure else min(classes, key=lambda c: abs(classes[c] - closure))
+        fault = next(iter(faults), "none").upper()
+        rows.append({"file": file, "scenario": "closed_loop", "monitor": monitor, "class": cls,
+                     "fault": fault if fault != "NONE" else "none", "closure": max(faults.values(), default=0.0),
+                     "onset_s": "" if not faults else onset, "unit_seed": "", "seed": seed, "src_ip": src_ip,
+                     "set": "simulated"})
+    return rows
 
 
 def _check_output(path: str) -> None:

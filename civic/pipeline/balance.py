@@ -1,9 +1,9 @@
 """Twin of control/balance.p4: a balance monitor's expected flows and accumulator (pipeline.md 3b).
 
 Each flow term is a range table on (head, cmd) = (f[plus] - f[minus] mod 2^16, f[command]),
-whose entry gives the expected net inflow of one sample period (sixteenths of a mL) and a band
+whose entry gives the expected net inflow of one sample period (1/64 mL) and a band
 contribution; the terms are summed, the sum accumulated per plant, and the ring gets
-z = (x << 4) - acc, so the monitor's slope over z is the balance residual; the bands are
+z = (x << 6) - acc, so the monitor's slope over z is the balance residual; the bands are
 summed over the same window (accb and its ring) for the class table's second key.
 """
 from __future__ import annotations
@@ -51,7 +51,7 @@ def expected(fields: dict, terms: list[FlowTerm]) -> tuple[np.ndarray, np.ndarra
 
 
 def pushed(x, acc):
-    """What the ring gets: (x << 4) - acc, modulo 2^32 (acc after this message's e)."""
+    """What the ring gets: (x << 6) - acc, modulo 2^32 (acc after this message's e)."""
     return ((np.asarray(x, np.int64) << BALANCE_SHIFT) - np.asarray(acc, np.int64)) & U32
 
 

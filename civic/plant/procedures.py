@@ -151,13 +151,15 @@ def label_row(file: str, proc: Procedure, seed, src_ip: str = "10.0.0.1", set_na
 
 
 def append_label(path, row: dict) -> None:
-    """Append a row to a labels CSV (writing the header for a new file)."""
+    """Append a row to a labels CSV (writing the header for a new file; the row's keys are the columns,
+    those of LABEL_COLUMNS first)."""
     import csv
     import os
 
     new = not os.path.exists(path) or os.path.getsize(path) == 0
+    columns = [c for c in LABEL_COLUMNS if c in row] + [c for c in row if c not in LABEL_COLUMNS]
     with open(path, "a", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=LABEL_COLUMNS)
+        w = csv.DictWriter(fh, fieldnames=columns)
         if new:
             w.writeheader()
         w.writerow(row)

@@ -63,8 +63,8 @@
 #define OPERAND_V1 5
 #define OPERAND_V2 6
 #define OPERAND_ZERO 7
-// Balance monitors push (x << BALANCE_SHIFT) - acc: sixteenths of a mL.
-#define BALANCE_SHIFT 4
+// Balance monitors push (x << BALANCE_SHIFT) - acc: 1/64 mL.
+#define BALANCE_SHIFT 6
 // The class table's band key is the window's band sum >> BAND_SUM_SHIFT.
 #define BAND_SUM_SHIFT 7
 // hold saturates at 255 (8-bit register).

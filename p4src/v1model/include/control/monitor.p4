@@ -227,7 +227,7 @@ control Monitor(in plant_msg_t msg, in bit<32> slot, in bit<1> gap,
             }
             run.write(slot, m.run);
 
-            // balance monitors: z = (x << 4) - acc, acc += expected inflow;
+            // balance monitors: z = (x << 6) - acc, acc += expected inflow;
             // the class table's band key: the bands summed over the window
             ptr.read(m.ptr, slot);
             m.ring_idx = (slot << MAX_WINDOW_LOG2) | (bit<32>)(m.ptr & (MAX_WINDOW - 1));

@@ -1,7 +1,7 @@
 /*
  * CIVIC v1model -- slope estimators (docs/pipeline.md section 3).
  *
- * over z, the ring's values (x, or a balance monitor's (x << 4) - acc):
+ * over z, the ring's values (x, or a balance monitor's (x << 6) - acc):
  *   endpoint: slope = z - old                 (old = z[n - W + 1], R = W - 1)
  *   value:    slope = z                       (limit monitors)
  *   lsq:      slope = (W - 1) * s0 - 2 * s1   (R = W; twice the least-

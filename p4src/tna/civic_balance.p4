@@ -23,28 +23,31 @@
  *
  * Differences from pipeline.md 3 / 3b beyond those of civic.p4 (details in
  * include/balance/balance.p4 and p4src/README.md):
- *  - W = R = 100, the signal and the flow terms' operands are fixed at
+ *  - W = R (80), the signal and the flow terms' operands are fixed at
  *    compile time (include/config.p4); the hold H comes from set_config
  *    (hold_min, 2..255);
  *  - the lsq slope is kept in a register of its own (slope + 2^31), not
  *    recomputed from s1: same value, three stages shorter;
  *  - cand and hold are one register pair; hold saturates at 65535;
  *  - command steps from two saturating differences (|a - b| in the MAU);
- *  - flow terms are TCAM range tables of TNA_FLOW_TABLE_SIZE entries.
+ *  - flow terms are TCAM range tables of at most 2048 entries
+ *    (include/config.p4), fewer than civic train's 2-D terms have.
  *
  * Ingress stage plan as bf-p4c 9.13.4 placed it (both slots in each stage):
  *   0  forward, monitored_port, plant_prefix, seq - 1, config, precondition,
- *      head differences, x << 4, the flow term on message fields
+ *      head differences, x << BALANCE_SHIFT, the flow term on message fields
  *      (mon2.flow1 V2 on (l3, v2); mon3.flow0 P1 on (zero, p1))
  *   1  the flow term on a head difference (mon2.flow0 pipe23 on (l2 - l3,
  *      zero); mon3.flow1 V1 on (l1 - l2, v1)), ptr, last_v1, last_v2,
  *      H - 1 (from set_config's hold_min)
  *   2  acc, last_seq, last_p1, band widened
- *   3  z = (x << 4) - acc', accb, command steps (cmd |-| last, last |-| cmd)
+ *   3  z = (x << BALANCE_SHIFT) - acc', accb, command steps (cmd |-| last,
+ *      last |-| cmd)
  *   4  ring (returns old + z), ringb (returns oldb), 2 * z, command steps (OR)
- *   5  old, z - old, 3 * (z + old), accb - oldb, precondition_cmd
- *   6  s0 (returns s0 - old), 99 * (z + old), band_w (mon3)
- *   7  ndelta = 2 * (s0 - old) - 99 * (z + old), run, band_w (mon2)
+ *   5  old, z - old, first step of (W - 1) * (z + old), accb - oldb,
+ *      precondition_cmd
+ *   6  s0 (returns s0 - old), (W - 1) * (z + old), band_w (mon3)
+ *   7  ndelta = 2 * (s0 - old) - (W - 1) * (z + old), run, band_w (mon2)
  *   8  slope (returns slope_key)
  *   9  classify + hold
  *  10  last_class, class byte
@@ -84,8 +87,8 @@
 @pa_container_size("ingress", "meta.mon2.old", 32)
 @pa_container_size("ingress", "meta.mon2.d", 32)
 @pa_container_size("ingress", "meta.mon2.a1", 32)
-@pa_container_size("ingress", "meta.mon2.a3", 32)
-@pa_container_size("ingress", "meta.mon2.a99", 32)
+@pa_container_size("ingress", "meta.mon2.t1", 32)
+@pa_container_size("ingress", "meta.mon2.w1a", 32)
 @pa_container_size("ingress", "meta.mon2.ns0", 32)
 @pa_container_size("ingress", "meta.mon2.ndelta", 32)
 @pa_container_size("ingress", "meta.mon2.z2", 32)
@@ -101,8 +104,8 @@
 @pa_container_size("ingress", "meta.mon3.old", 32)
 @pa_container_size("ingress", "meta.mon3.d", 32)
 @pa_container_size("ingress", "meta.mon3.a1", 32)
-@pa_container_size("ingress", "meta.mon3.a3", 32)
-@pa_container_size("ingress", "meta.mon3.a99", 32)
+@pa_container_size("ingress", "meta.mon3.t1", 32)
+@pa_container_size("ingress", "meta.mon3.w1a", 32)
 @pa_container_size("ingress", "meta.mon3.ns0", 32)
 @pa_container_size("ingress", "meta.mon3.ndelta", 32)
 @pa_container_size("ingress", "meta.mon3.z2", 32)
@@ -135,8 +138,10 @@ control CivicIngress(inout ig_headers_t hdr,
     // Balance slots (include/balance/balance.p4, include/config.p4): W, R, and
     // which flow term is keyed on message fields only (it runs first, in
     // stage 0). The operands are bound below: x, head0, cmd0, head1, cmd1.
-    BalanceMonitor(BAL_WINDOW, BAL_RING_LEN, true) mon2;
-    BalanceMonitor(BAL_WINDOW, BAL_RING_LEN, false) mon3;
+    BalanceMonitor(BAL_WINDOW, BAL_RING_LEN, true,
+                   TNA_FLOW_PIPE23_SIZE, TNA_FLOW_V2_SIZE) mon2;
+    BalanceMonitor(BAL_WINDOW, BAL_RING_LEN, false,
+                   TNA_FLOW_P1_SIZE, TNA_FLOW_V1_SIZE) mon3;
 
     // the head differences of the flow terms (16-bit modular, pipeline.md 3b)
     CIVIC_STEP(heads,

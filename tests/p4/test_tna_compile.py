@@ -238,7 +238,7 @@ def test_compensate_default_is_offset_zero(build):
 def config_defines() -> dict[str, tuple[int, ...]]:
     text = (ROOT / "p4src/tna/include/config.p4").read_text()
     return {m.group(1): tuple(int(v, 0) for v in m.group(2).split(","))
-            for m in re.finditer(r"^#define[ \t]+(\w+)[ \t]+([0-9xA-Fa-f, \t]+?)[ \t]*(?://.*)?$", text, re.MULTILINE)}
+            for m in re.finditer(r"^#define[ \t]+(\w+)[ \t]+(-?[0-9xA-Fa-f, \t]+?)[ \t]*(?://.*)?$", text, re.MULTILINE)}
 
 
 def s0_bias(window: int) -> int:
@@ -405,6 +405,12 @@ def test_balance_control_plane_objects(build_balance):
         for t in ("flow0", "flow1"):
             assert actions(t) == {f"CivicIngress.mon{k}.set_{t}": ["flow", "band"]}
             assert {key["match_type"] for key in tables[f"{m}.{t}"]["key"][:-1]} == {"Range"}
+    # the flow terms' sizes (include/config.p4): pipe23, V2 for balance_t3; P1, V1 for balance_t1
+    c = config_defines()
+    sizes = {"mon2.flow0": "TNA_FLOW_PIPE23_SIZE", "mon2.flow1": "TNA_FLOW_V2_SIZE",
+             "mon3.flow0": "TNA_FLOW_P1_SIZE", "mon3.flow1": "TNA_FLOW_V1_SIZE"}
+    for t, name in sizes.items():
+        assert tables[f"pipe.CivicIngress.{t}"]["size"] == c[name][0], t
         # one action per class, each running its class's hold RegisterAction; set_class on a miss
         assert actions("classify") == {f"CivicIngress.mon{k}.set_none": [], f"CivicIngress.mon{k}.set_normal": [],
                                        f"CivicIngress.mon{k}.set_warning": [], f"CivicIngress.mon{k}.set_error": [],
@@ -490,12 +496,27 @@ def test_balance_digest_and_counters(build_balance):
         assert counter["table_type"] == "Counter" and counter["size"] == 256 * 4
 
 
+def w1_steps(v: int, c: dict) -> tuple[int, int]:
+    """(W - 1) * v as balance.p4's two steps (config.p4 BAL_W1_*), bit<32>: (t1, t2)."""
+    m32 = 0xFFFFFFFF
+    t1 = ((v << c["BAL_W1_A"][0]) + c["BAL_W1_S1"][0] * v) & m32
+    x, y = {0: (t1, t1), 1: (t1, v), 2: (v, t1)}[c["BAL_W1_FORM"][0]]
+    return t1, ((x << c["BAL_W1_B"][0]) + c["BAL_W1_S2"][0] * y) & m32
+
+
 def test_balance_constants():
-    """W - 1 = (1 + 2^A) * (1 + 2^B) (the two hash-shift steps), R = W (lsq)."""
+    """The two steps give (W - 1) * v, R = W (lsq), and W is the balance monitors' window of
+    configs/monitors.toml (an entries file with another window needs a recompile)."""
+    import tomllib
     c = config_defines()
     w = c["BAL_WINDOW"][0]
-    assert c["BAL_RING_LEN"][0] == w
-    assert (1 + 2 ** c["BAL_W1_A"][0]) * (1 + 2 ** c["BAL_W1_B"][0]) == w - 1
+    assert c["BAL_RING_LEN"][0] == w and 2 <= w <= 128
+    assert abs(c["BAL_W1_S1"][0]) == 1 and abs(c["BAL_W1_S2"][0]) == 1 and c["BAL_W1_FORM"][0] in (0, 1, 2)
+    for v in (1, 2, 0xFFFF, 0x7FFFFFFF, 0xFFFFFFFF):
+        assert w1_steps(v, c)[1] == (v * (w - 1)) & 0xFFFFFFFF, v
+    monitors = tomllib.loads((ROOT / "configs/monitors.toml").read_text())["monitor"]
+    windows = {m["name"]: m["window"] for m in monitors if m.get("kind") == "balance"}
+    assert windows == {"balance_t3": w, "balance_t1": w}
 
 
 @pytest.mark.parametrize("hold", [2, 20, 255])
@@ -507,9 +528,10 @@ def test_balance_steps_match_the_model(hold):
     from civic.pipeline import slope as model_slope
     from civic.pipeline.classification import slope_key as model_key
 
-    m32, w = 0xFFFFFFFF, 100
+    from civic.entries import BALANCE_SHIFT
+    m32 = 0xFFFFFFFF
     c = config_defines()
-    a, b = c["BAL_W1_A"][0], c["BAL_W1_B"][0]
+    w = c["BAL_WINDOW"][0]
     rng = __import__("random").Random(hold)
     ring = data_collection.RingState(1, w)
     acc_model = 0
@@ -533,7 +555,7 @@ def test_balance_steps_match_the_model(hold):
         want = int(model_slope.lsq(ring.s0[0], ring.s1[0], w))
         # TNA (balance.p4)
         acc = (acc + e) & m32                                   # acc_add
-        x16 = x << 4                                            # widen_x
+        x16 = x << BALANCE_SHIFT                                # widen_x
         z = (x16 - acc) & m32                                   # push_z
         z2 = (z << 1) & m32                                     # twice_z
         p, ptr = ptr, 0 if ptr == w - 1 else ptr + 1            # ptr_advance
@@ -545,9 +567,8 @@ def test_balance_steps_match_the_model(hold):
         old = (a1 - z) & m32                                    # get_old
         d = (z2 - a1) & m32                                     # diff
         ns0, s0 = (s0 - old) & m32, (s0 + d) & m32              # s0_add
-        a3 = (a1 + ((a1 << a) & m32)) & m32                     # times_a
-        a99 = (a3 + ((a3 << b) & m32)) & m32                    # times_b
-        ndelta = (((ns0 << 1) & m32) - a99) & m32               # add_s0
+        _, w1a = w1_steps(a1, c)                                # times_a, times_b
+        ndelta = (((ns0 << 1) & m32) - w1a) & m32               # add_s0
         slope_reg = (slope_reg - ndelta) & m32                  # slope_add
         assert slope_reg == int(model_key(want)), n
         # hold: the class from the table (0..3), as classify's actions give it

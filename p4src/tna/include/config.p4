@@ -79,7 +79,9 @@
 // bits stay 0 in this profile). Each profile alone uses all 12 stages
 // (p4src/README.md, "The balance profile").
 // What TNA fixes at compile time for a balance slot (include/balance/balance.p4):
-//  - the window W = R = 100 (lsq; the ring holds z = (x << 4) - acc);
+//  - the window W = R (lsq; the ring holds z = (x << BALANCE_SHIFT) - acc),
+//    configs/monitors.toml's balance window (tests/p4/test_tna_compile.py
+//    checks that they agree);
 //  - the signal and the flow terms' operands (pipeline.md 3b), those of
 //    configs/monitors.toml:
 //      mon2 balance_t3: x = l3; flow0 = pipe23 (head l2 - l3, cmd zero),
@@ -91,14 +93,24 @@
 //  (the hold H is set_config's hold_min at run time, 2..255; the entries'
 //  window must equal BAL_WINDOW).
 #ifdef CIVIC_PROFILE_BALANCE
-#define BAL_WINDOW 100
-#define BAL_RING_LEN 100
+#define BAL_WINDOW 80
+#define BAL_RING_LEN 80
 // The lsq slope is carried in a register of its own (include/balance/balance.p4):
 //   slope' = slope + (W - 1) * (z + old) + 2 * (old - s0)      (R = W)
-// and W - 1 = 99 = (1 + 2^1) * (1 + 2^5): two steps of "v + (v << a)"
-// (the shifted operand from an identity hash), one stage each.
-#define BAL_W1_A 1
-#define BAL_W1_B 5
+// (W - 1) * v takes two steps, one stage each, of the form "(u << a) +- w":
+// the shifted operand comes from an identity hash (a Tofino ALU operation
+// takes one operand from the PHV, the other from the action data bus):
+//   t1 = (v << BAL_W1_A) + BAL_W1_S1 * v
+//   t2 = (X << BAL_W1_B) + BAL_W1_S2 * Y,  (X, Y) = (t1, t1) for FORM 0,
+//        (t1, v) for FORM 1, (v, t1) for FORM 2
+// so W - 1 is (2^A +- 1)(2^B +- 1), (2^A +- 1) 2^B +- 1 or 2^B +- (2^A +- 1).
+// W = 80: W - 1 = 79 = (2^2 + 1) 2^4 - 1   (W = 100: 99 = (2^1 + 1)(2^5 + 1),
+// A 1, S1 1, FORM 0, B 5, S2 1)
+#define BAL_W1_A 2
+#define BAL_W1_S1 1
+#define BAL_W1_FORM 1
+#define BAL_W1_B 4
+#define BAL_W1_S2 -1
 // the class table's second key is the window's band sum >> 7 (pipeline.md 3b,
 // civic/entries.py BAND_SUM_SHIFT; shared/define.p4's BAND_SUM_SHIFT when
 // it defines one)
@@ -109,11 +121,19 @@
 #endif
 #endif
 
-// Flow terms (pipeline.md 3b) are 2-D range tables in TCAM: each (head, cmd)
-// rectangle expands to (rows of the head range) x (rows of the cmd range)
-// TCAM words (p4src/README.md, "The balance profile"). v1model:
-// FLOW_TABLE_SIZE 8192.
-#define TNA_FLOW_TABLE_SIZE 512
+// Flow terms (pipeline.md 3b) are range x range tables in TCAM: each (head,
+// cmd) rectangle expands to (words of the head range) x (words of the cmd
+// range) TCAM words (p4src/README.md, "The balance profile"). The term on
+// message fields runs in stage 0, the one on a head difference in stage 1:
+// their sizes fill those stages' 24 TCAM blocks next to plant_prefix and
+// the level preconditions (bf-p4c reserves about 2.5 words per entry):
+//   stage 0: V2 (mon2.flow1) 1200 -> 12 blocks, P1 (mon3.flow0) 128 -> 3
+//   stage 1: V1 (mon3.flow1) 2048 -> 20 blocks, pipe23 (mon2.flow0) 192 -> 3
+// v1model: FLOW_TABLE_SIZE 8192 per term.
+#define TNA_FLOW_PIPE23_SIZE 192
+#define TNA_FLOW_V2_SIZE 1200
+#define TNA_FLOW_P1_SIZE 128
+#define TNA_FLOW_V1_SIZE 2048
 
 // Verdict changes (pipeline.md section 7): last_class holds the class, the
 // digest's chgK says "changed" with this bit (so that a change from "none

@@ -105,7 +105,7 @@ struct balance_md_t {
     bit<1>  q_cmd;          // precondition_cmd (p1 v1 v2 dp1 dv1 dv2) holds
     bit<8>  run;            // run counter after this message
     bit<8>  ptr;            // ring pointer before this message
-    bit<32> x16;            // x << 4, zero-extended
+    bit<32> x16;            // x << BALANCE_SHIFT, zero-extended
     bit<32> e;              // flow0 + flow1: expected net inflow of this sample
     bit<16> band;           // band0 + band1
     bit<32> band32;         // band, zero-extended
@@ -114,13 +114,13 @@ struct balance_md_t {
     bit<32> oldb;           // ringb cell overwritten by accb
     bit<32> bdiff;          // accb - oldb: the last R bands summed
     bit<16> band_w;         // (bdiff >> 7) mod 2^16: the class table's second key
-    bit<32> z;              // (x << 4) - acc', what the ring gets
+    bit<32> z;              // (x << BALANCE_SHIFT) - acc', what the ring gets
     bit<32> z2;             // 2 * z
     bit<32> a1;             // z + old (the ring's result)
     bit<32> old;            // ring cell overwritten by z
     bit<32> d;              // z - old
-    bit<32> a3;             // 3 * (z + old)
-    bit<32> a99;            // (W - 1) * (z + old)
+    bit<32> t1;             // first step of (W - 1) * (z + old) (config.p4)
+    bit<32> w1a;            // (W - 1) * (z + old)
     bit<32> ns0;            // s0 - old (s0 before its update)
     bit<32> ndelta;         // minus the slope increment: 2 * (s0 - old) - (W - 1) * (z + old)
     bit<32> slope_key;      // slope XOR 2^31 (the slope register)

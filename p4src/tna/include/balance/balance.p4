@@ -12,7 +12,7 @@
  * band), classify, registers ring ptr run s0 acc accb ringb last_class),
  * except where Tofino's rules force a difference (p4src/README.md, "The
  * balance profile"):
- *  - W = R = 100, the signal x and the flow terms' operands are
+ *  - W = R (include/config.p4), the signal x and the flow terms' operands are
  *    compile-time constants (the operands are the control's `in`
  *    parameters x, head0, cmd0, head1, cmd1; include/config.p4). set_config
  *    keeps v1model's fifteen parameters; `enabled` and `hold_min` (H) are
@@ -41,8 +41,8 @@
  * what starts from their cell: the ring stores z and returns old + z, s0
  * adds d and returns s0 - old, and slope subtracts
  *     ndelta = 2 * (s0 - old) - (W - 1) * (z + old).
- * W - 1 = 99 = (1 + 2^1) * (1 + 2^5), so (W - 1) * (z + old) is two steps
- * "v + (v << a)", the shifted operand coming from an identity hash (a
+ * (W - 1) * (z + old) is two steps "(u << a) +- w" (W = 80: 79 = 5 * 16
+ * - 1; config.p4), the shifted operand coming from an identity hash (a
  * Tofino ALU operation takes one PHV operand and one from the action data
  * bus, where hash results arrive), and 2 * (s0 - old) the same way in the
  * step that subtracts it. The register `slope` holds slope + 2^31, so that
@@ -73,8 +73,8 @@
  *   1 the flow term on a head difference (e += flow, band += band), ptr,
  *     H - 1
  *   2 acc   3 z, accb   4 ring (old + z), ringb, 2 * z
- *   5 old, d, 3 * (z + old), accb - oldb, precondition_cmd
- *   6 s0 (s0 - old), 99 * (z + old), band_w   7 ndelta, run   8 slope
+ *   5 old, d, t1, accb - oldb, precondition_cmd
+ *   6 s0 (s0 - old), (W - 1) * (z + old), band_w   7 ndelta, run   8 slope
  *   9 classify + hold   10 last_class, class byte
  */
 #ifndef _CIVIC_TNA_BALANCE_P4_
@@ -92,7 +92,8 @@ control BalanceMonitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_pre
                        in bit<16> x, in bit<16> head0, in bit<16> cmd0,
                        in bit<16> head1, in bit<16> cmd1,
                        inout balance_md_t m, inout bit<2> cls_out)
-                      (bit<8> c_window, bit<8> c_ring_len, bool c_flow1_first) {
+                      (bit<8> c_window, bit<8> c_ring_len, bool c_flow1_first,
+                       int c_flow0_size, int c_flow1_size) {
 
     Register<bit<32>, bit<15>>(RING_CELLS, 0) ring;
     Register<bit<8>, bit<8>>(MAX_PLANTS, 0) ptr;
@@ -107,7 +108,8 @@ control BalanceMonitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_pre
 
     Hash<bit<15>>(HashAlgorithm_t.IDENTITY) ring_index;
     Hash<bit<15>>(HashAlgorithm_t.IDENTITY) ringb_index;
-    // x << 4 zero-extended to 32 bit: an identity hash places x in bits 19..4
+    // x << BALANCE_SHIFT zero-extended to 32 bit: an identity hash places x
+    // above BALANCE_SHIFT zero bits
     Hash<bit<32>>(HashAlgorithm_t.IDENTITY) widen;
     Hash<bit<32>>(HashAlgorithm_t.IDENTITY) widen_b;
     Hash<bit<16>>(HashAlgorithm_t.IDENTITY) narrow_b;
@@ -156,7 +158,7 @@ control BalanceMonitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_pre
             set_flow0;
         }
         default_action = set_flow0(0, 0);
-        size = TNA_FLOW_TABLE_SIZE;
+        size = c_flow0_size;
     }
 
     action set_flow1(bit<32> flow, bit<16> band) {
@@ -173,7 +175,7 @@ control BalanceMonitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_pre
             set_flow1;
         }
         default_action = set_flow1(0, 0);
-        size = TNA_FLOW_TABLE_SIZE;
+        size = c_flow1_size;
     }
 
     // ------------------------------------------------------------ precondition
@@ -396,18 +398,40 @@ control BalanceMonitor(in plant_msg_t msg, in bit<1> monitored, in bit<1> in_pre
     };
 
     // ------------------------------------------------------------ one-operation steps
-    CIVIC_STEP(widen_x, m.x16 = widen.get({x, 4w0});)
-    // z = (x << 4) - acc', and 2 * z
+    CIVIC_STEP(widen_x, m.x16 = widen.get({x, (bit<BALANCE_SHIFT>)0});)
+    // z = (x << BALANCE_SHIFT) - acc', and 2 * z
     CIVIC_STEP(push_z, m.z = m.x16 - m.acc;)
     CIVIC_STEP(twice_z, m.z2 = m.z << 1;)
     // from a1 = z + old (the ring's result): old = a1 - z, d = z - old = 2z - a1
     CIVIC_STEP(get_old, m.old = m.a1 - m.z;)
     CIVIC_STEP(diff, m.d = m.z2 - m.a1;)
-    // 3 * (z + old), 99 * (z + old) = (W - 1) * (z + old)
-    CIVIC_STEP(times_a, m.a3 = m.a1 + shift_a.get({m.a1[31 - BAL_W1_A:0], (bit<BAL_W1_A>)0});)
-    CIVIC_STEP(times_b, m.a99 = m.a3 + shift_b.get({m.a3[31 - BAL_W1_B:0], (bit<BAL_W1_B>)0});)
+    // (W - 1) * (z + old) in two steps (include/config.p4: BAL_W1_*)
+#define CIVIC_SHL(SRC, N) {SRC[31 - (N):0], (bit<N>)0}
+#if BAL_W1_S1 > 0
+    CIVIC_STEP(times_a, m.t1 = shift_a.get(CIVIC_SHL(m.a1, BAL_W1_A)) + m.a1;)
+#else
+    CIVIC_STEP(times_a, m.t1 = shift_a.get(CIVIC_SHL(m.a1, BAL_W1_A)) - m.a1;)
+#endif
+#if BAL_W1_FORM == 0
+#define CIVIC_W1_X m.t1
+#define CIVIC_W1_Y m.t1
+#elif BAL_W1_FORM == 1
+#define CIVIC_W1_X m.t1
+#define CIVIC_W1_Y m.a1
+#else
+#define CIVIC_W1_X m.a1
+#define CIVIC_W1_Y m.t1
+#endif
+#if BAL_W1_S2 > 0
+    CIVIC_STEP(times_b, m.w1a = shift_b.get(CIVIC_SHL(CIVIC_W1_X, BAL_W1_B)) + CIVIC_W1_Y;)
+#else
+    CIVIC_STEP(times_b, m.w1a = shift_b.get(CIVIC_SHL(CIVIC_W1_X, BAL_W1_B)) - CIVIC_W1_Y;)
+#endif
+#undef CIVIC_W1_X
+#undef CIVIC_W1_Y
     // ndelta = -delta = 2 * (s0 - old) - (W - 1) * (z + old)
-    CIVIC_STEP(add_s0, m.ndelta = shift_s0.get({m.ns0[30:0], 1w0}) - m.a99;)
+    CIVIC_STEP(add_s0, m.ndelta = shift_s0.get(CIVIC_SHL(m.ns0, 1)) - m.w1a;)
+#undef CIVIC_SHL
     CIVIC_STEP(write_cls, cls_out = m.w[1:0];)
     // H - 1, what the hold RegisterActions compare the count before this message with
     CIVIC_STEP(hold_less_one, m.hold_m1 = m.hold_min - 1;)

@@ -17,7 +17,8 @@ $(VENV)/.installed: pyproject.toml
 	$(BIN)/pip install --quiet -e '.[test]'
 	touch $@
 
-# Train on the bundled recordings, compare modes leave-one-run-out, replay, score.
+# Train on the bundled recordings, compare modes leave-one-run-out, replay, score; then the
+# closed-loop recordings (continuous validation), scored over time.
 demo: venv
 	mkdir -p $(OUT)
 	$(BIN)/civic train traces/training -o $(OUT)/entries.json
@@ -26,6 +27,10 @@ demo: venv
 		--events $(OUT)/events.jsonl
 	$(BIN)/civic evaluate $(OUT)/replay --labels traces/training/labels.csv \
 		--entries $(OUT)/entries.json --json $(OUT)/scores.json
+	$(BIN)/civic replay traces/continuous/*.pcap -o $(OUT)/continuous --entries $(OUT)/entries.json \
+		--events $(OUT)/events_continuous.jsonl
+	$(BIN)/civic evaluate $(OUT)/continuous --labels traces/continuous/labels.csv \
+		--entries $(OUT)/entries.json --json $(OUT)/continuous/scores.json
 	@# the same recordings through BMv2, where it is installed (root: network namespace)
 	@if command -v simple_switch_grpc >/dev/null && command -v p4c-bm2-ss >/dev/null && [ "$$(id -u)" = 0 ]; then \
 		$(BIN)/civic replay traces/training/*.pcap -o $(OUT)/replay_bmv2 --entries $(OUT)/entries.json \
@@ -33,6 +38,12 @@ demo: venv
 		for f in $(OUT)/replay/*.pcap; do cmp -s $$f $(OUT)/replay_bmv2/$$(basename $$f) || \
 			{ echo "BMv2 and the software model differ: $$f"; exit 1; }; done && \
 		cmp -s $(OUT)/events.jsonl $(OUT)/events_bmv2.jsonl || { echo "BMv2 digests differ from the model's events"; exit 1; } && \
+		$(BIN)/civic replay traces/continuous/*.pcap -o $(OUT)/continuous_bmv2 --entries $(OUT)/entries.json \
+			--target bmv2 --pipeline build/v1model --events $(OUT)/events_continuous_bmv2.jsonl && \
+		for f in $(OUT)/continuous/*.pcap; do cmp -s $$f $(OUT)/continuous_bmv2/$$(basename $$f) || \
+			{ echo "BMv2 and the software model differ: $$f"; exit 1; }; done && \
+		cmp -s $(OUT)/events_continuous.jsonl $(OUT)/events_continuous_bmv2.jsonl || \
+			{ echo "BMv2 digests differ from the model's events"; exit 1; } && \
 		echo "BMv2 output byte-identical with the software model on every recording; its digests give the same events"; \
 	else echo "(BMv2 replay skipped: needs simple_switch_grpc and p4c-bm2-ss on PATH, and root)"; fi
 

@@ -27,6 +27,8 @@ class Monitor:
     mass-balance residual over the model components named in `flows`, banded by the
     expected flow of the `band` component (pipeline.md 3b), "limit" the level's value.
     `hold`: a class is written once the table gave it on that many consecutive messages.
+    `limits` (limit monitors): the values from which on the class is warning and error (a
+    warning limit above the error limit watches a low level).
     """
 
     name: str
@@ -38,6 +40,7 @@ class Monitor:
     hold: int = 1
     flows: tuple[str, ...] = ()
     band: str | None = None
+    limits: dict[str, int] = field(default_factory=dict)
 
     def ranges(self) -> list[tuple[int, int]]:
         """Precondition as one inclusive range per field, in PRECONDITION_FIELDS order."""
@@ -107,8 +110,23 @@ def parse_monitor(raw, what: str) -> Monitor:
     flows, band = parse_flows(raw, what, kind)
     if comp is not None and kind != "slope":
         raise CivicError(f"{what}.compensate: only slope monitors are compensated")
+    limits = parse_limits(raw.get("limits"), what, kind)
     return Monitor(name=name, signal=raw["signal"], window=window, precondition=pre, compensate=comp,
-                   kind=kind, hold=hold, flows=flows, band=band)
+                   kind=kind, hold=hold, flows=flows, band=band, limits=limits)
+
+
+def parse_limits(raw, what: str, kind: str) -> dict[str, int]:
+    """A limit monitor's thresholds {warning, error} in wire units (optional in entries files)."""
+    if raw is None:
+        return {}
+    if kind != "limit":
+        raise CivicError(f"{what}.limits: only limit monitors have limits")
+    if not isinstance(raw, dict) or set(raw) != {"warning", "error"}:
+        raise CivicError(f"{what}.limits: expected {{ warning = N, error = N }}")
+    out = {k: check_int(raw[k], f"{what}.limits.{k}", 1, 0xFFFF) for k in ("warning", "error")}
+    if out["warning"] == out["error"]:
+        raise CivicError(f"{what}.limits: warning and error limits must differ")
+    return out
 
 
 def parse_flows(raw: dict, what: str, kind: str) -> tuple[tuple[str, ...], str | None]:

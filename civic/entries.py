@@ -83,6 +83,7 @@ class MonitorEntries(Monitor):
             **({"compensation": {"signal": self.compensate[0], "minus": self.compensate[1],
                                  "offsets": [{"aux": [int(r[0]), int(r[1])], "offset": int(r[2])}
                                              for r in self.offsets]}} if self.compensate else {}),
+            **({"limits": dict(self.limits)} if self.limits else {}),
             **({"flows": list(self.flows), "band": self.band,
                 "flow_terms": [t.to_json() for t in self.terms]} if self.kind == "balance" else {}),
             "slope_scale_ml_per_s": self.slope_scale,
@@ -151,7 +152,7 @@ def parse_monitor_entries(raw, what: str) -> MonitorEntries:
     terms = parse_terms(raw.get("flow_terms"), f"{what}.flow_terms", base.kind)
     return MonitorEntries(name=base.name, signal=base.signal, window=base.window,
                           precondition=base.precondition, compensate=comp, kind=base.kind, hold=base.hold,
-                          flows=base.flows, band=base.band,
+                          flows=base.flows, band=base.band, limits=base.limits,
                           estimator=est, default_class=default, classes=table, offsets=offsets, terms=terms)
 
 

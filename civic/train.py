@@ -78,7 +78,8 @@ def monitor_entries(mon: Monitor, estimator: str, rows=None, default_class=3, of
     offsets = np.zeros((0, 3), np.int64) if offsets is None else offsets
     return MonitorEntries(name=mon.name, signal=mon.signal, window=mon.window,
                           precondition=mon.precondition, compensate=mon.compensate if len(offsets) else None,
-                          kind=mon.kind, hold=mon.hold, estimator="value" if mon.kind == "limit" else estimator,
+                          kind=mon.kind, hold=mon.hold, limits=mon.limits,
+                          estimator="value" if mon.kind == "limit" else estimator,
                           default_class=default_class, classes=table, offsets=offsets)
 
 
@@ -306,7 +307,7 @@ def train(runs: list[Run], config: MonitorConfig, estimator: str, banded: bool, 
 
     Balance monitors (docs/pipeline.md 3b) are trained on simulated closed-loop operation of the
     plant model (the envelope's calibrated one, else `model`): civic.continuous."""
-    tested = [m for m in config.monitors if m.kind != "balance"]
+    tested = [m for m in config.monitors if m.kind == "slope"]
     for mon in tested:
         if not any(r.monitor == mon.name for r in runs):
             raise CivicError(f"labels have no recording for monitor {mon.name!r} (drop it from the monitors file)")
@@ -315,6 +316,9 @@ def train(runs: list[Run], config: MonitorConfig, estimator: str, banded: bool, 
     fitted = {mon.name: fit_monitor(mon, runs + simulated, estimator, banded, offsets_for(mon, estimator, envelope))[0]
               for mon in tested}
     training = {"estimator": estimator, "banded": banded, "runs": sorted({r.file for r in runs})}
+    for mon in config.monitors:
+        if mon.kind == "limit":
+            fitted[mon.name] = limit_entries(mon)
     balances = [m for m in config.monitors if m.kind == "balance"]
     if balances:
         from civic.continuous import CLOSED_LOOP_UNITS, CLOSED_LOOP_SEED, UNIT_SPREAD, closed_loop_runs, train_balance
@@ -336,6 +340,18 @@ def train(runs: list[Run], config: MonitorConfig, estimator: str, banded: bool, 
                                 "simulated_runs": len(simulated)}
     return Entries(monitors=[fitted[m.name] for m in config.monitors], udp_port=config.udp_port,
                    plant_prefix=config.plant_prefix, training=training)
+
+
+def limit_entries(mon: Monitor) -> MonitorEntries:
+    """A limit monitor's class table straight from its configured limits (nothing to learn)."""
+    if not mon.limits:
+        raise CivicError(f"monitor {mon.name}: a limit monitor needs limits = {{ warning = N, error = N }}")
+    w, e = mon.limits["warning"], mon.limits["error"]
+    if w < e:          # a high limit: normal below the warning limit
+        rows = [[0, w - 1, 0, 0xFFFF, 1], [w, e - 1, 0, 0xFFFF, 2], [e, 0xFFFF, 0, 0xFFFF, 3]]
+    else:              # a low limit: normal above it
+        rows = [[w + 1, 0xFFFF, 0, 0xFFFF, 1], [e + 1, w, 0, 0xFFFF, 2], [0, e, 0, 0xFFFF, 3]]
+    return monitor_entries(mon, "value", rows, default_class=1)
 
 
 def predict_run(entries: MonitorEntries, run: Run) -> np.ndarray:

@@ -243,8 +243,13 @@ def bmv2_inputs(tmp_path_factory, trained_entries):
     civic_cli("simulate", "drain", "--plants", "64", "--seed", "100", "-o", d / "fleet_drain.pcap")
     civic_cli("simulate", "fill", "--plants", "64", "--seed", "200", "-o", d / "fleet_fill.pcap")
     changing_fleet(d / "fleet_changing.pcap", plants=12)
-    caps = sorted((ROOT / "traces" / "training").glob("*.pcap")) + [d / "edges.pcap", d / "fleet_drain.pcap",
-                                                                    d / "fleet_fill.pcap", d / "fleet_changing.pcap"]
+    # 64 plants in closed-loop operation, faults switched on mid-run (fault-free, VM1 and VM2 in turn)
+    civic_cli("simulate", "closed-loop", "--controller", "pi", "--plants", "64", "--duration", "100",
+              "--onset", "30", "--seed", "300", "-o", d / "fleet_closed_loop.pcap")
+    caps = sorted((ROOT / "traces" / "training").glob("*.pcap")) + sorted(
+        (ROOT / "traces" / "continuous").glob("*.pcap")) + [d / "fleet_closed_loop.pcap", d / "edges.pcap",
+                                                             d / "fleet_drain.pcap", d / "fleet_fill.pcap",
+                                                             d / "fleet_changing.pcap"]
     return d / "entries.json", caps
 
 
@@ -276,6 +281,11 @@ def test_bmv2_output_is_byte_identical_to_model(tmp_path, bmv2_inputs, v1model_b
     assert all(out.messages["plant"][i] for i in changed)
     fleet = read_pcap(tmp_path / "bmv2" / "fleet_drain.pcap").messages
     assert len(np.unique(fleet["src"][fleet["verdict"] > 0])) == 64
+    # the balance monitors gave verdicts on every closed-loop plant, and warnings/errors on some
+    loop = read_pcap(tmp_path / "bmv2" / "fleet_closed_loop.pcap").messages
+    balance = (loop["verdict"] >> 4) & 0xF
+    assert len(np.unique(loop["src"][balance > 0])) == 64
+    assert np.any(((loop["verdict"] >> 4) & 3) > 1) and np.any(((loop["verdict"] >> 6) & 3) > 1)
 
 
 @needs_netns

@@ -170,3 +170,19 @@ def test_broken_balance_entries_are_one_line_errors(change, message):
     with pytest.raises(CivicError) as err:
         parse_entries(raw, "e.json")
     assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_limit_monitor_tables_come_from_the_configured_limits():
+    from civic.config import load_monitors
+    from civic.train import limit_entries
+
+    rim = next(m for m in load_monitors(ROOT / "configs" / "monitors-rim.toml").monitors if m.kind == "limit")
+    entries = limit_entries(rim)
+    msgs = steady(14, 0, 0)
+    msgs["l1"] = [9000] * 10 + [9699, 9700, 9899, 9900]
+    model = SwitchModel(parse_entries({"format": "civic-entries/3", "monitors": [entries.to_json()]}, "t"))
+    assert monitor_verdict(model.run(msgs), 0).tolist() == [0] * 9 + [1, 1, 2, 2, 3]
+    low = limit_entries(type(rim)(**{**rim.__dict__, "limits": {"warning": 2000, "error": 1000}}))
+    model = SwitchModel(parse_entries({"format": "civic-entries/3", "monitors": [low.to_json()]}, "t"))
+    msgs["l1"] = [3000] * 10 + [2001, 2000, 1001, 1000]
+    assert monitor_verdict(model.run(msgs), 0).tolist() == [0] * 9 + [1, 1, 2, 2, 3]

@@ -7,7 +7,7 @@ P4C    ?= p4c-bm2-ss
 # the prebuilt toolchain's place (p4src/README.md), when installed
 export PATH := $(if $(wildcard /opt/p4/bin),/opt/p4/bin:)$(PATH)
 
-.PHONY: demo test bench p4 p4-tna clean venv
+.PHONY: demo test bench p4 p4-tna p4-tna-balance clean venv
 
 venv: $(VENV)/.installed
 
@@ -65,6 +65,12 @@ p4-tna:
 	@command -v bf-p4c >/dev/null 2>&1 || { echo "make p4-tna: bf-p4c not found on PATH (see p4src/README.md)"; exit 1; }
 	mkdir -p build/tna
 	bf-p4c --target tofino --arch tna -g -I p4src -o build/tna p4src/tna/civic.p4
+
+# The TNA balance profile: balance_t3 and balance_t1 in place of the test monitors (p4src/README.md).
+p4-tna-balance:
+	@command -v bf-p4c >/dev/null 2>&1 || { echo "make p4-tna-balance: bf-p4c not found on PATH (see p4src/README.md)"; exit 1; }
+	mkdir -p build/tna-balance
+	bf-p4c --target tofino --arch tna -g -I p4src -o build/tna-balance p4src/tna/civic_balance.p4
 
 clean:
 	rm -rf $(OUT) build

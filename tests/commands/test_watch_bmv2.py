@@ -67,7 +67,9 @@ def test_watch_reports_the_switchs_digests_counters_and_metrics(switch, v1model_
                 "--events", tmp_path / "model.jsonl")
     assert res.returncode == 0, res.stderr
     want = [json.loads(ln) for ln in (tmp_path / "model.jsonl").read_text().splitlines()]
-    assert len(want) == 18 and sum(e["from"] is not None for e in want) == 12   # every plant changes twice
+    drain = [e for e in want if e["monitor"] == "drain_t3"]
+    assert len(drain) == 18 and sum(e["from"] is not None for e in drain) == 12   # every plant changes twice
+    assert len(want) > 18            # the balance monitors judge the drain tests too (and see the clogs)
 
     res = civic("configure", "--switch", switch.address, "--entries", entries, "--pipeline", v1model_build)
     assert res.returncode == 0, res.stderr
@@ -100,7 +102,7 @@ def test_watch_reports_the_switchs_digests_counters_and_metrics(switch, v1model_
         watch.send_signal(signal.SIGINT)              # Ctrl-C ends it cleanly
         stdout, stderr = watch.communicate(timeout=20)
     assert watch.returncode == 0, stderr
-    assert "Traceback" not in stderr and "stopped: 18 verdict changes from 6 plants" in stderr
+    assert "Traceback" not in stderr and f"stopped: {len(want)} verdict changes from 6 plants" in stderr
 
     got = [json.loads(ln) for ln in events.read_text().splitlines()]
     assert without_t(got) == without_t(want)          # t: when the digest arrived, not capture time
@@ -117,7 +119,7 @@ def test_watch_reports_the_switchs_digests_counters_and_metrics(switch, v1model_
                 n = int(np.sum((src == plant) & (code == c)))
                 key = ("civic_verdicts_total", (("class", cls), ("monitor", name), ("plant", int_to_ip(int(plant)))))
                 assert metrics.get(key, 0.0) == n, key
-    assert metrics[("civic_events_total", ())] == 18
+    assert metrics[("civic_events_total", ())] == len(want)
     assert metrics[("civic_last_digest_age_seconds", ())] >= 0
     last = {(e["plant"], e["monitor"]): e["to"] for e in want}
     for (plant, monitor), cls in last.items():

@@ -99,6 +99,7 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
         self.tables: dict[tuple, p4runtime_pb2.TableEntry] = {}
         self.defaults: dict[int, p4runtime_pb2.TableEntry] = {}
         self.registers: dict[int, dict[int, int]] = {}
+        self.digests: dict[int, p4runtime_pb2.DigestEntry.Config] = {}
         if p4info is None:
             return
         self.t = {t.preamble.id: t for t in p4info.tables}
@@ -216,6 +217,12 @@ class P4RuntimeFixture(p4runtime_pb2_grpc.P4RuntimeServicer):
                 raise Reject(code_pb2.OUT_OF_RANGE, "register index")
             v = self._bytes(r.data.bitstring, reg.type_spec.bitstring.bit.bitwidth, "register data")
             self.registers[r.register_id][r.index.index] = v
+            return
+        if u.entity.WhichOneof("entity") == "digest_entry":       # a controller enabling a digest
+            d = u.entity.digest_entry
+            if d.digest_id not in {x.preamble.id for x in self.p4info.digests}:
+                raise Reject(code_pb2.NOT_FOUND, "no such digest")
+            self.digests[d.digest_id] = copy.deepcopy(d.config)
             return
         te = u.entity.table_entry
         self._check_entry(te)

@@ -191,7 +191,7 @@ def test_v1model_control_plane_names():
 
 
 def test_derived_names_match_fixture_p4info():
-    """Every table, action and register of the hand-written P4Info fixture is one the program has."""
+    """Every table, action and register of the P4Info fixture is one the program has."""
     fixture = ROOT / "tests/fixtures/civic.p4info.txtpb"
     if not fixture.exists():
         pytest.skip("no P4Info fixture")
@@ -276,7 +276,7 @@ def test_constants_match_python_and_docs():
 
 
 def test_table_sizes_match_fixture_p4info():
-    """The hand-written P4Info fixture of tests/test_p4runtime.py uses the sizes the program declares."""
+    """The P4Info fixture of tests/test_p4runtime.py uses the sizes the program declares."""
     fixture = ROOT / "tests/fixtures/civic.p4info.txtpb"
     if not fixture.exists():
         pytest.skip("no P4Info fixture")

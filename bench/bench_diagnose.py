@@ -125,8 +125,17 @@ SWEEP = {
     "valve_V1": ("valve_characteristic", "V1", (1.3, 1.5)),
     "valve_V2": ("valve_characteristic", "V2", (1.5,)),
     "saturation_L1": ("sensor_saturation", "L1", (9.0,)),
+    # real-rig physics (issue #20): a flow law that is not Torricelli, a bent level sensor
+    # (calibrated at 5 L), a pump dead zone, an overflow whose spill partly leaves the plant
+    "flowlaw_pipe23": ("flow_law", "pipe23", (0.7, 0.85)),     # q = c*|dh|**n, n instead of 0.5
+    "flowlaw_V2": ("flow_law", "V2", (0.7, 0.85)),
+    "sensorchar_L2": ("sensor_characteristic", "L2", (1.1, 1.2)),   # y = 5**(1-n)*V**n
+    "deadzone_P1": ("pump_dead_zone", "P1", (0.05, 0.1)),      # no flow below this command
+    "split_T1": ("overflow", "T1", (0.5,)),                     # rim 9 L, this share into T4, rest out
     "clean": (None, None, (0.0,)),
 }
+
+NEW_KINDS = ("flowlaw", "sensorchar", "deadzone", "split")
 
 
 SPILL_RIM = 8.5    # L: the rim of the finite spill cases
@@ -160,6 +169,16 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
                             min_level=SPILL_RIM / area))
     elif kind == "valve":
         m.find("valve", comp).characteristic = mag
+    elif kind == "flowlaw":
+        m.find("link", comp).exponent = mag
+    elif kind == "sensorchar":
+        s = m.find("sensor", comp)
+        s.exponent = mag
+        s.gain = 5.0 ** (1.0 - mag)          # calibrated at 5 L: exact there, bent elsewhere
+    elif kind == "deadzone":
+        m.find("pump", comp).input_offset = mag
+    elif kind == "split":
+        m.tank(comp).overflow = Overflow(to="T4", volume=9.0, fraction=mag, rest="outside")
     elif kind == "saturation":
         m.find("sensor", comp).max = mag
     return m
@@ -190,6 +209,8 @@ def sweep_case(job) -> dict:
     active = True
     if case.startswith("overflow"):
         active = bool(np.max(res.volumes[:, 0]) >= mag - 1e-9)
+    elif case.startswith("split"):
+        active = bool(np.max(res.volumes[:, 0]) >= 9.0 - 1e-9)
     elif case.startswith("spill"):
         active = bool(np.max(res.volumes[:, nominal.tank_names.index(want[1])]) > SPILL_RIM + 0.05)
     elif case.startswith("saturation"):

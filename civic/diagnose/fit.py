@@ -36,6 +36,10 @@ from .mechanisms.coefficient import CAL_SPREAD
 MIN_DBIC = 10.0
 MIN_GAIN = 0.10
 MAX_FINDINGS = 3
+# a candidate whose held-out BIC is within this of the chosen one's (and significant on its own)
+# is an indistinguishable alternative: reported next to the finding, never a finding itself
+ALT_DBIC = 10.0
+MAX_ALTERNATIVES = 3
 # a rig seen through a free run (some tank unmeasured): the nominal coefficients are refitted
 # jointly with the candidates (no datasheet spread to hold them), more findings may join, the
 # final joint refit is multi-start and every kept finding must survive its ablation
@@ -108,6 +112,7 @@ class FitResult:
     fold_sse: list = field(default_factory=list)
     fold_tol: float | None = 0.0            # a fold's held-out SSE may rise by this fraction (None: pooled only)
     val_rmse: float = float("nan")          # held-out RMSE in signal units (all folds)
+    fold_params: list = field(default_factory=list)  # per fold: [mechanism.values()] of its fit
 
 
 def significant(res: FitResult, ref: FitResult) -> tuple[bool, float, float]:
@@ -138,6 +143,7 @@ class Diagnosis:
     final_all: FitResult | None = None       # final model refitted on all rows
     ablation: dict = field(default_factory=dict)   # free run: held-out RMSE with each finding removed
     integrator: dict = field(default_factory=dict)  # free run: integrator accuracy check
+    uncertainty: list = field(default_factory=list)  # per finding: jackknife standard errors
 
 
 class Problem:
@@ -279,13 +285,15 @@ class Problem:
     def evaluate(self, mechs: list[Mechanism], start_cal=None, start_x0=None, starts=None,
                  budget: int = 40) -> FitResult:
         """Fit on each fold's training rows; held-out SSE/BIC over all folds' held-out rows."""
-        first, held = None, []
+        first, held, params = None, [], []
         for mask in self.folds():
             res = self.fit(mechs, rows=mask, start_cal=start_cal, start_x0=start_x0, starts=starts, budget=budget)
             R = self.residuals(res.model, res.x0_extra)
             held.append(R[~mask])
+            params.append([m.values() for m in res.mechanisms])
             if first is None:
                 first = res
+        first.fold_params = params
         Rv = np.concatenate(held)
         first.fold_sse = [float(np.sum(h ** 2)) for h in held]
         first.fold_tol = MIN_GAIN if len(held) > 1 and isinstance(self.engine, EquationError) else 0.0
@@ -372,6 +380,7 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         diag.final_all = final_all
         if free:
             diag.integrator = check_integrator(diag.model_improved, prob, final_all)
+        diag.uncertainty = uncertainty(prob, final_all, current.fold_params if free else None)
         diag.verdict = f"{len(chosen)} finding(s) significant on held-out data"
     else:
         diag.model_improved = _refit_all(prob, [], base).model
@@ -393,8 +402,8 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
     for round_ in range(MAX_FINDINGS):
         results = []
         for cand in candidates:
-            if any(type(c) is type(cand) and c.component == cand.component for c in chosen):
-                continue
+            if any(c.name == cand.name and c.component == cand.component for c in chosen):
+                continue     # one finding per family and component (a weir on top of a spill: no)
             try:
                 res = prob.evaluate(chosen + [cand], start_cal=current.cal, start_x0=current.x0_extra,
                                     starts=_starts(cand))
@@ -420,17 +429,66 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
         ok, dbic, gain = significant(res, current)
         if not ok:
             break
+        alternatives = _alternatives(results, cand, res, current)
         chosen.append(res.mechanisms[-1])
         chosen[:-1] = res.mechanisms[:-1]
         diag.findings.append({"mechanism": cand, "fit": res, "dbic": dbic, "gain": gain,
-                              "prev": current})
+                              "prev": current, "alternatives": alternatives})
         current = res
         # later rounds: only what helped on its own in the first round (or shares its component)
         helped = {t["candidate"] for t in diag.tried if t["dbic"] < 0}
-        candidates = [c for c in candidates if not (type(c) is type(cand) and c.component == cand.component)
+        candidates = [c for c in candidates if not (c.name == cand.name and c.component == cand.component)
                       and c.label in helped]
         planned += len(candidates)
     return chosen, current
+
+
+def _alternatives(results, cand: Mechanism, res: FitResult, current: FitResult) -> list[dict]:
+    """Candidates the held-out data does not separate from the chosen one: significant on their
+    own against the same reference, and within ALT_DBIC of the chosen one's held-out BIC (best
+    first). They are reported, never added as findings."""
+    out = []
+    for c, r in sorted(results, key=lambda cr: cr[1].val_bic):
+        if c is cand or r.val_bic - res.val_bic >= ALT_DBIC:
+            continue
+        ok, dbic, gain = significant(r, current)
+        if ok:
+            out.append({"mechanism": c, "fit": r, "dbic": dbic, "gain": gain,
+                        "dbic_vs_chosen": r.val_bic - res.val_bic})
+    return out[:MAX_ALTERNATIVES]
+
+
+def uncertainty(prob: Problem, res: FitResult, fold_params: list | None = None) -> list[dict]:
+    """Per finding of `res` (fitted on all rows): the standard error of each free parameter from a
+    delete-one-block jackknife. Equation error: N_BLOCKS contiguous blocks, each left out once, the
+    model refitted from `res` (cheap: vectorised residuals). Free run: the per-fold fits of the
+    blocked cross-validation (`fold_params`, each fold leaves one block out), no extra fits."""
+    from .compare import N_BLOCKS
+
+    mechs = res.mechanisms
+    if not mechs:
+        return []
+    if fold_params is None:
+        n = len(prob.engine.train)
+        block = np.minimum(np.arange(n) * N_BLOCKS // max(n, 1), N_BLOCKS - 1)
+        fold_params = []
+        for b in range(N_BLOCKS):
+            try:
+                r = prob.fit(mechs, rows=block != b, start_cal=res.cal, start_x0=res.x0_extra, budget=15)
+            except RuntimeError:
+                continue
+            fold_params.append([m.values() for m in r.mechanisms])
+    k = len(fold_params)
+    out = []
+    for i, m in enumerate(mechs):
+        se = {}
+        for name in m.names:
+            vals = np.array([fp[i][name] for fp in fold_params if i < len(fp) and name in fp[i]], float)
+            if len(vals) >= 2:
+                se[name] = float(np.sqrt((len(vals) - 1) / len(vals) * np.sum((vals - vals.mean()) ** 2)))
+        out.append({"method": f"delete-one-block jackknife ({k} blocks)", "stderr": se,
+                    "blocks": [{n: fp[i][n] for n in m.names} for fp in fold_params if i < len(fp)]})
+    return out
 
 
 def _starts(cand: Mechanism) -> list:
@@ -523,6 +581,7 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
     order = sorted(range(len(mechs)), key=lambda i: -without[i].val_rmse)
     chosen = [mechs[i] for i in order]
     current.mechanisms = list(chosen)
+    current.fold_params = [[fp[i] for i in order] for fp in current.fold_params]
     for i in order:
         m, w = mechs[i], without[i]
         others = [x for x in chosen if x is not m]

@@ -402,8 +402,9 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
     for round_ in range(MAX_FINDINGS):
         results = []
         for cand in candidates:
-            if any(c.name == cand.name and c.component == cand.component for c in chosen):
-                continue     # one finding per family and component (a weir on top of a spill: no)
+            if any(c.component == cand.component for c in chosen):
+                continue     # one finding per component: a second one on it (an offset on top of a
+                             # sensor map, a weir on top of a spill) only trades with the first
             try:
                 res = prob.evaluate(chosen + [cand], start_cal=current.cal, start_x0=current.x0_extra,
                                     starts=_starts(cand))
@@ -437,8 +438,7 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
         current = res
         # later rounds: only what helped on its own in the first round (or shares its component)
         helped = {t["candidate"] for t in diag.tried if t["dbic"] < 0}
-        candidates = [c for c in candidates if not (c.name == cand.name and c.component == cand.component)
-                      and c.label in helped]
+        candidates = [c for c in candidates if c.component != cand.component and c.label in helped]
         planned += len(candidates)
     return chosen, current
 

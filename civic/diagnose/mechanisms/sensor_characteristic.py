@@ -17,7 +17,7 @@ from .sensor_offset import drives_no_flow
 
 class SensorCharacteristic(Mechanism):
     name = "sensor_characteristic"
-    hidden = ("base", "base_gain", "range")  # the model's own offset and gain; the readings' range
+    hidden = ("base", "base_gain", "range", "q_mid")  # the model's offset and gain; the readings' range
 
     def edit(self, model, p):
         self.edit_sensor(model.find("sensor", self.component), p)
@@ -25,7 +25,15 @@ class SensorCharacteristic(Mechanism):
     def edit_sensor(self, s, p):
         s.exponent = float(p["exponent"])
         s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
-        s.gain = float(self.fixed.get("base_gain", 1.0)) * float(p["gain"])
+        if "gain" in p:
+            g = float(p["gain"])
+        else:
+            # tied: the bent map equals the model's at the middle of the readings (q_mid), so
+            # only the bend and the offset are free and the curve cannot slide along the
+            # gain/exponent/offset valley of a narrow range (which extrapolates wildly)
+            q_mid = max(float(self.fixed.get("q_mid", 1.0)), 1e-9)
+            g = q_mid ** (1.0 - float(p["exponent"]))
+        s.gain = float(self.fixed.get("base_gain", 1.0)) * g
 
     @classmethod
     def candidates(cls, model, loc):
@@ -34,10 +42,23 @@ class SensorCharacteristic(Mechanism):
             if s.name not in loc.signals_present or s.tank not in loc.tanks or s.exponent != 1.0:
                 continue
             span = max(loc.signal_span.get(s.name, 1.0), 1e-6)
+            rng = getattr(loc, "signal_range", {}).get(s.name)
             out.append(cls(s.name, {"exponent": 1.02, "offset": 0.0, "gain": 1.0},
                            {"exponent": (0.5, 2.0), "offset": (-0.25 * span, 0.25 * span), "gain": (0.2, 3.0)},
-                           {"base": s.offset, "base_gain": s.gain,
-                            "range": getattr(loc, "signal_range", {}).get(s.name)}))
+                           {"base": s.offset, "base_gain": s.gain, "range": rng,
+                            "q_mid": float(s.invert(0.5 * (rng[0] + rng[1]))) if rng else 1.0}))
+        return out
+
+    def tied(self) -> "SensorCharacteristic":
+        """The two-parameter variant (exponent, offset; gain tied at the readings' middle)."""
+        return type(self)(self.component, {k: v for k, v in self.params.items() if k != "gain"},
+                          {k: v for k, v in self.bounds.items() if k != "gain"}, dict(self.fixed))
+
+    def values(self, theta=None) -> dict:
+        out = super().values(theta)
+        if "gain" not in out and "exponent" in out:
+            q_mid = max(float(self.fixed.get("q_mid", 1.0)), 1e-9)
+            out["gain"] = q_mid ** (1.0 - float(out["exponent"]))
         return out
 
     def negligible(self, p, model):

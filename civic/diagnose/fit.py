@@ -369,7 +369,10 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         # so a sensor map is fitted with its gain tied at the readings' middle (bend and offset
         # free): the three-parameter map slid along its flat valley and extrapolated wildly
         # there (held-out +200 BIC on a bent L2). The free run keeps the general map
-        candidates = [c.tied() if c.name == "sensor_characteristic" else c for c in candidates]
+        candidates = [c.tied() if c.name == "sensor_characteristic" else c for c in candidates
+                      # a link's flow law as an exponent only: the added-linear-term form named
+                      # the same links on every case tried, and doubled the flow-law fits
+                      if not (c.name == "flow_law" and c.fixed.get("form") == "linear")]
         chosen, current = _forward(prob, diag, candidates, base, progress)
     if progress:
         progress(1, 1, "done")
@@ -481,7 +484,7 @@ def uncertainty(prob: Problem, res: FitResult, fold_params: list | None = None) 
         fold_params = []
         for b in range(N_BLOCKS):
             try:
-                r = prob.fit(mechs, rows=block != b, start_cal=res.cal, start_x0=res.x0_extra, budget=15)
+                r = prob.fit(mechs, rows=block != b, start_cal=res.cal, start_x0=res.x0_extra, budget=6)
             except RuntimeError:
                 continue
             fold_params.append([m.values() for m in r.mechanisms])
@@ -500,8 +503,8 @@ def uncertainty(prob: Problem, res: FitResult, fold_params: list | None = None) 
 
 def _starts(cand: Mechanism) -> list:
     """Extra starting points for parameters whose objective is flat away from the truth."""
-    if cand.name == "overflow" and "volume" in cand.params:
-        lo, hi = cand.bounds["volume"]
+    if cand.name == "overflow" and "volume" in cand.params and cand.bounds["volume"][1] > 1.1 * cand.bounds["volume"][0]:
+        lo, hi = cand.bounds["volume"]     # a free rim (a plateau's split spill: narrow, one start)
         rest = [cand.params[k] for k in cand.names if k != "volume"]   # e.g. the split fraction
         return [[lo + f * (hi - lo)] + rest for f in (0.1, 0.3, 0.55)]
     if "rim_level" in cand.params:       # a weir: c spans decades

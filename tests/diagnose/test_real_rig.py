@@ -66,3 +66,24 @@ def test_alternative_experiment_names_the_separating_test():
     a = Leak("T1", {"c": 0.01}, {}, {"to": "T4"})
     b = Leak("T1", {"c": 0.01}, {}, {"to": "outside"})
     assert "inventory" in separating_experiment(a, b)
+
+
+def test_alternatives_are_the_significant_candidates_within_alt_dbic():
+    """The chosen finding is the best held-out BIC; others significant on their own and within
+    ALT_DBIC of it are alternatives (best first), the rest are not."""
+    from civic.diagnose.fit import ALT_DBIC, FitResult, _alternatives
+    from civic.diagnose.mechanisms import FlowLaw, Leak, ValveCharacteristic
+
+    def res(bic, sse):
+        return FitResult([], None, {}, 0.0, sse, bic, 1, None, fold_sse=[sse], fold_tol=0.0)
+
+    ref = res(0.0, 100.0)
+    fl = FlowLaw("V2", {"exponent": 0.6}, {"exponent": (0.15, 2)}, {"form": "exponent"})
+    vc = ValveCharacteristic("V2", {"n": 1.2}, {"n": (0.25, 4)})
+    lk = Leak("T3", {"c": 0.01}, {}, {"to": "T4"})
+    weak = Leak("T2", {"c": 0.01}, {}, {"to": "T4"})
+    results = [(fl, res(-100.0, 40.0)), (vc, res(-100.0 + ALT_DBIC / 2, 42.0)),
+               (lk, res(-100.0 + 2 * ALT_DBIC, 50.0)), (weak, res(-5.0, 95.0))]
+    alts = _alternatives(results, fl, results[0][1], ref)
+    assert [a["mechanism"] for a in alts] == [vc]
+    assert alts[0]["dbic_vs_chosen"] == ALT_DBIC / 2

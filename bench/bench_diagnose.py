@@ -8,6 +8,9 @@ report, no plot), with a rich progress bar on a terminal.
 
 Run: python bench/bench_diagnose.py  (or `python -m bench`). Prints one line per case.
 
+Cascaded Tanks transfer (fit on one half of the estimation record, score on the other):
+    python bench/bench_diagnose.py --transfer
+
 Robustness sweep (not part of `python -m bench`, ~5 min on 2 cores):
     python bench/bench_diagnose.py --robustness 1,2,3,4,5,6,7,8 [CASE,CASE...]
 10 min closed-loop cases, the plant's coefficients off by up to +-4 % (calibration), one
@@ -125,8 +128,17 @@ SWEEP = {
     "valve_V1": ("valve_characteristic", "V1", (1.3, 1.5)),
     "valve_V2": ("valve_characteristic", "V2", (1.5,)),
     "saturation_L1": ("sensor_saturation", "L1", (9.0,)),
+    # real-rig physics (issue #20): a flow law that is not Torricelli, a bent level sensor
+    # (calibrated at 5 L), a pump dead zone, an overflow whose spill partly leaves the plant
+    "flowlaw_pipe23": ("flow_law", "pipe23", (0.55, 0.6)),     # q = c*|dh|**n, n instead of 0.5
+    "flowlaw_V2": ("flow_law", "V2", (0.6, 0.7)),
+    "sensorchar_L2": ("sensor_characteristic", "L2", (1.05, 1.1)),  # y = 5**(1-n)*V**n
+    "deadzone_P1": ("pump_dead_zone", "P1", (0.03, 0.05)),     # no flow below this command
+    "split_T1": ("overflow", "T1", (0.5,)),                     # rim 9 L, this share into T4, rest out
     "clean": (None, None, (0.0,)),
 }
+
+NEW_KINDS = ("flowlaw", "sensorchar", "deadzone", "split")
 
 
 SPILL_RIM = 8.5    # L: the rim of the finite spill cases
@@ -160,6 +172,16 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
                             min_level=SPILL_RIM / area))
     elif kind == "valve":
         m.find("valve", comp).characteristic = mag
+    elif kind == "flowlaw":
+        m.find("link", comp).exponent = mag
+    elif kind == "sensorchar":
+        s = m.find("sensor", comp)
+        s.exponent = mag
+        s.gain = 5.0 ** (1.0 - mag)          # calibrated at 5 L: exact there, bent elsewhere
+    elif kind == "deadzone":
+        m.find("pump", comp).input_offset = mag
+    elif kind == "split":
+        m.tank(comp).overflow = Overflow(to="T4", volume=9.0, fraction=mag, rest="outside")
     elif kind == "saturation":
         m.find("sensor", comp).max = mag
     return m
@@ -190,6 +212,8 @@ def sweep_case(job) -> dict:
     active = True
     if case.startswith("overflow"):
         active = bool(np.max(res.volumes[:, 0]) >= mag - 1e-9)
+    elif case.startswith("split"):
+        active = bool(np.max(res.volumes[:, 0]) >= 9.0 - 1e-9)
     elif case.startswith("spill"):
         active = bool(np.max(res.volumes[:, nominal.tank_names.index(want[1])]) > SPILL_RIM + 0.05)
     elif case.startswith("saturation"):
@@ -211,8 +235,10 @@ def robustness(seeds: list[int], cases: list[str] | None = None) -> int:
 
     jobs = [(c, mag, s) for c, (_, _, mags) in SWEEP.items() if not cases or c in cases
             for mag in mags for s in seeds]
+    import os
+
     rates = defaultdict(lambda: [0, 0, 0])
-    with Pool(2) as pool:
+    with Pool(int(os.environ.get("CIVIC_BENCH_PROCS", "2"))) as pool:
         for r in pool.imap_unordered(sweep_case, jobs):
             k = rates[(r["case"], r["mag"])]
             if not r["active"]:
@@ -222,13 +248,67 @@ def robustness(seeds: list[int], cases: list[str] | None = None) -> int:
                 k[1] += 1
             print(f"{'ok ' if r['ok'] else 'BAD'} {r['case']} {r['mag']:g} seed {r['seed']}"
                   f"{'' if r['active'] else ' (inactive)'}: {r['findings'] or 'no finding'}", flush=True)
-    print()
-    for (case, mag), (good, n, idle) in sorted(rates.items()):
-        print(f"{case:14s} {mag:6g}: {good}/{n}" + (f" ({idle} inactive)" if idle else ""))
+    for title, new in (("catalogue families (closed-loop four-tank)", False),
+                       ("real-rig physics on the closed-loop four-tank plant (issue #20)", True)):
+        rows = [(k, v) for k, v in sorted(rates.items()) if (k[0].split("_")[0] in NEW_KINDS) == new]
+        if not rows:
+            continue
+        print(f"\n{title}: right mechanism and component first, nothing else found (clean: no alarm)")
+        for (case, mag), (good, n, idle) in rows:
+            print(f"  {case:16s} {mag:6g}: {good}/{n}" + (f" ({idle} inactive)" if idle else ""))
     return 0
 
 
+# ---------------------------------------------------------------------------------------
+# Cascaded Tanks transfer: fit on one half of the estimation record, score on the other
+# ---------------------------------------------------------------------------------------
+def transfer(n_init: int = 50) -> dict:
+    """`civic diagnose` on each half of the Cascaded Tanks estimation record, the improved model
+    scored on the other half (open-loop simulation, first `n_init` samples set the state and are
+    not scored, as `civic simulate --init-samples`). The validation record is not used."""
+    import numpy as np
+
+    from civic.diagnose import data
+    from civic.diagnose.fit import diagnose
+    from civic.diagnose.report import simulation_rmse
+    from civic.plant.model import PlantModel
+    from civic.plant.simulate import Recording
+
+    data_path, model_path, _ = CASCADED
+    model = PlantModel.from_toml(model_path)
+    rec = data.load(data_path, model)
+    n = len(rec.t)
+    halves = {"first": slice(0, n // 2), "second": slice(n // 2, n)}
+
+    def part(sl, name):
+        sig = {k: np.asarray(v)[sl] for k, v in rec.signals.items()}
+        t = np.asarray(rec.t)[sl]
+        return Recording(t - t[0], sig, None, f"{rec.path} ({name} half)")
+
+    out = {}
+    for a, b in (("first", "second"), ("second", "first")):
+        ra, rb = part(halves[a], a), part(halves[b], b)
+        t0 = time.perf_counter()
+        d = diagnose(model, ra, n_init=n_init)
+        el = time.perf_counter() - t0
+        own, _ = simulation_rmse(d.model_improved, ra, n_init, n_init)
+        other, _ = simulation_rmse(d.model_improved, rb, n_init, n_init)
+        nom, _ = simulation_rmse(model, rb, n_init, n_init)
+        out[f"{a}->{b}"] = {"fit_rmse": own["y_V"], "transfer_rmse": other["y_V"], "nominal_on_other": nom["y_V"],
+                            "findings": [f["mechanism"].label for f in d.findings], "seconds": round(el, 1)}
+        print(f"{a} half -> {b} half: fitted {own['y_V']:.3f} V on its own half, {other['y_V']:.3f} V on the "
+              f"other (nominal {nom['y_V']:.3f} V); {el:.0f} s; findings: "
+              + ", ".join(f"{f['mechanism'].label} {f['fit'].mechanisms[-1].report_parameters()}" for f in d.findings), flush=True)
+    mean = float(np.mean([v["transfer_rmse"] for v in out.values()]))
+    print(f"half -> half transfer RMSE (mean of both directions): {mean:.3f} V")
+    out["mean_transfer_rmse"] = mean
+    return out
+
+
 if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "--transfer":
+        transfer()
+        sys.exit(0)
     if len(sys.argv) > 2 and sys.argv[1] == "--robustness":
         sys.exit(robustness([int(s) for s in sys.argv[2].split(",")], sys.argv[3].split(",") if len(sys.argv) > 3 else None))
     sys.exit(main())

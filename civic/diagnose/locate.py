@@ -54,6 +54,7 @@ class Localisation:
     max_volume: dict = field(default_factory=dict)
     signals_present: list[str] = field(default_factory=list)
     signal_span: dict = field(default_factory=dict)
+    signal_range: dict = field(default_factory=dict)  # sensor -> (1st, 99th percentile) of its reading
 
     @property
     def mismatch(self) -> bool:
@@ -357,6 +358,7 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
         if s.name in rec.signals:
             y = np.asarray(rec.signals[s.name], float)
             loc.signal_span[s.name] = float(np.ptp(y)) or 1.0
+            loc.signal_range[s.name] = (float(np.percentile(y, 1)), float(np.percentile(y, 99)))
             q = s.invert(y)
             tk = model.tank(s.tank)
             v = q * tk.area if s.quantity == "level" else q

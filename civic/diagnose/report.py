@@ -152,9 +152,19 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         })
         if "heldout_rmse_without" in f:
             findings[-1]["heldout_rmse_without"] = round(f["heldout_rmse_without"], 6)
+        findings[-1]["heldout_error"] = _heldout_error(f["fit"])
+        findings[-1]["alternatives"] = _alternatives_report(diag, f)
+        unc = diag.uncertainty[i] if i < len(diag.uncertainty) else None
+        if unc:
+            findings[-1]["uncertainty"] = {
+                "method": unc["method"],
+                "stderr": {k: round(v, 6) for k, v in unc["stderr"].items()},
+                "blocks": [{k: round(float(v), 6) for k, v in b.items()} for b in unc["blocks"]]}
     skip_rows = skip
     before, sim_before = simulation_rmse(model, rec, n_init, skip_rows)
     after, sim_after = simulation_rmse(diag.model_improved, rec, n_init, skip_rows)
+    for f, mech in zip(findings, [f["mechanism"] for f in diag.findings]):
+        f["plot"] = _panel(diag, rec, mech, sim_before, sim_after, f["intervals"])
     calib, _ = simulation_rmse(diag.model_calibrated, rec, n_init, skip_rows)
     fit = {"before": {"rmse": before, "model": "nominal (model file)"},
            "after": {"rmse": after, "model": "improved (calibrated + findings)"},
@@ -208,6 +218,79 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
     }
     report["_sims"] = (sim_before, sim_after)
     return report
+
+
+def _heldout_error(res) -> dict:
+    out = {"weighted_sse": round(float(res.val_sse), 4), "bic": round(float(res.val_bic), 2)}
+    if math.isfinite(res.val_rmse):
+        out["rmse"] = round(float(res.val_rmse), 6)
+    return out
+
+
+def _alternatives_report(diag: Diagnosis, f: dict) -> list[dict]:
+    """Candidates the held-out data does not separate from the chosen finding (fit._alternatives),
+    with their held-out errors and the experiment that would tell them apart."""
+    from .experiments import separating_experiment
+
+    out = []
+    for a in f.get("alternatives", ()):
+        m = a["fit"].mechanisms[-1]
+        p = m.report_parameters()
+        p.pop("base", None)
+        out.append({"mechanism": m.name, "component": m.component, "parameters": p,
+                    "heldout_dbic": round(a["dbic"], 2), "heldout_sse_reduction": round(a["gain"], 4),
+                    "heldout_error": _heldout_error(a["fit"]),
+                    "heldout_dbic_vs_chosen": round(a["dbic_vs_chosen"], 2),
+                    "description": m.describe(m.values()),
+                    "experiment": separating_experiment(f["mechanism"], m, diag.model_nominal)})
+    return out
+
+
+def _component_tanks(model: PlantModel, comp) -> list[str]:
+    """The tanks a component acts on (a tank itself, a sensor's tank, a link's or a valve's ends,
+    a pump's delivery tank)."""
+    names = model.tank_names
+    if comp in names:
+        return [comp]
+    out = []
+    for s in model.sensors:
+        if s.name == comp:
+            out.append(s.tank)
+    for lk in model.links:
+        if comp in (lk.name, lk.valve):
+            out += [t for t in (lk.from_, lk.to) if t in names]
+    for p in model.pumps:
+        if p.name == comp:
+            out += [t for t in (p.to, p.from_) if t in names]
+    return list(dict.fromkeys(out)) or list(names)
+
+
+PANEL_POINTS = 300
+
+
+def _panel(diag: Diagnosis, rec: Recording, mech, sim_before: dict, sim_after: dict, intervals) -> dict:
+    """The plot panel of a finding: recorded vs nominal vs improved open-loop simulation on the
+    signal it affects most (a sensor of the tanks it acts on), decimated to PANEL_POINTS."""
+    model = diag.model_nominal
+    sigs = [s.name for t in _component_tanks(model, mech.component) for s in model.sensors
+            if s.tank == t and s.name in rec.signals]
+    if mech.component in rec.signals:
+        sigs = [mech.component]
+    if not sigs:
+        sigs = [s for s in model.signal_names if s in rec.signals]
+    if not sigs:
+        return {}
+    sig = max(sigs, key=lambda s: float(np.sqrt(np.mean((np.asarray(sim_after[s]) - np.asarray(sim_before[s])) ** 2))))
+    n = len(rec.t)
+    idx = np.unique(np.linspace(0, n - 1, min(n, PANEL_POINTS)).round().astype(int))
+    t = np.arange(n) * model.dt
+    y = np.asarray(rec.signals[sig], float)
+    return {"signal": sig, "intervals": intervals,
+            "rmse_nominal": round(rmse(sim_before[sig], y), 6), "rmse_improved": round(rmse(sim_after[sig], y), 6),
+            "t": [round(float(v), 2) for v in t[idx]],
+            "recorded": [round(float(v), 5) for v in y[idx]],
+            "nominal": [round(float(v), 5) for v in np.asarray(sim_before[sig])[idx]],
+            "improved": [round(float(v), 5) for v in np.asarray(sim_after[sig])[idx]]}
 
 
 def _limits_reached(diag: Diagnosis, rec: Recording) -> dict:
@@ -293,7 +376,8 @@ def plot(report: dict, diag: Diagnosis, rec: Recording, path: str | Path) -> Non
     sigs = [s for s in diag.model_nominal.signal_names if s in rec.signals]
     eng = diag.engine
     extra = isinstance(eng, EquationError)
-    rows = len(sigs) + (1 if extra else 0)
+    panels = [(i, f) for i, f in enumerate(report["findings"], 1) if f.get("plot")]
+    rows = len(sigs) + (1 if extra else 0) + len(panels)
     fig, axes = plt.subplots(rows, 1, figsize=(11, 2.2 * rows + 0.6), sharex=True, squeeze=False)
     axes = axes[:, 0]
     t = np.arange(len(rec.t)) * diag.model_nominal.dt
@@ -305,7 +389,7 @@ def plot(report: dict, diag: Diagnosis, rec: Recording, path: str | Path) -> Non
         ax.plot(t, sim_after[s], color="tab:blue", lw=1.0, alpha=0.8, label="improved")
         ax.set_ylabel(s)
     if extra:
-        ax = axes[-1]
+        ax = axes[len(sigs)]
         Rb = eng.residuals(diag.model_nominal)
         Ra = eng.residuals(diag.model_improved)
         tw = eng.row_times[:, 1]
@@ -314,7 +398,18 @@ def plot(report: dict, diag: Diagnosis, rec: Recording, path: str | Path) -> Non
             ax.plot(tw, np.cumsum(Ra[:, j]), lw=1.0, color=line.get_color(), label=f"{c} improved")
         ax.set_ylabel("cum. mass-balance\nresidual (L)")
         ax.legend(loc="upper left", fontsize=7, ncol=4)
-    for ax in axes:
+    # one panel per finding: its affected signal, its own intervals shaded
+    for ax, (i, f) in zip(axes[len(sigs) + (1 if extra else 0):], panels):
+        p = f["plot"]
+        ax.plot(p["t"], p["recorded"], color="0.55", lw=2.2, label="recorded")
+        ax.plot(p["t"], p["nominal"], color="tab:red", lw=1.0, label=f"nominal (RMSE {p['rmse_nominal']:.3g})")
+        ax.plot(p["t"], p["improved"], color="tab:blue", lw=1.0, label=f"improved (RMSE {p['rmse_improved']:.3g})")
+        for a, b in f["intervals"]:
+            ax.axvspan(a, b, color="green", alpha=0.12, lw=0)
+        ax.set_ylabel(p["signal"])
+        ax.set_title(f"finding {i}: {f['mechanism']} {f['component']}", fontsize=8, loc="left")
+        ax.legend(loc="upper right", fontsize=7, ncol=3)
+    for ax in axes[:len(sigs) + (1 if extra else 0)]:
         for a, b in shade:
             ax.axvspan(a, b, color="orange", alpha=0.15, lw=0)
     axes[0].legend(loc="upper right", fontsize=8, ncol=3)

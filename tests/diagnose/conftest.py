@@ -56,6 +56,18 @@ def make_fault(nominal, name):
         m.find("valve", "V1").characteristic = 1.5
     elif name == "saturation_L1":
         m.find("sensor", "L1").max = 9.0
+    # real-rig physics (issue #20)
+    elif name == "flowlaw_pipe23":
+        m.find("link", "pipe23").exponent = 0.6
+    elif name == "flowlaw_V2":
+        m.find("link", "V2").exponent = 0.7
+    elif name == "sensorchar_L2":
+        s = m.find("sensor", "L2")
+        s.exponent, s.gain = 1.1, 5.0 ** -0.1       # calibrated at 5 L, bent elsewhere
+    elif name == "deadzone_P1":
+        m.find("pump", "P1").input_offset = 0.05
+    elif name == "split_T1":
+        m.tank("T1").overflow = Overflow(to="T4", volume=9.0, fraction=0.5, rest="outside")
     elif name != "clean":
         raise KeyError(name)
     return m

@@ -3,13 +3,14 @@
 Two forms real rigs show: a free flow exponent (`exponent`, q = c*h**n: a short pipe,
 laminar or turbulent losses) or an added linear term (`linear`, q = c*sqrt(h) + c_lin*h:
 a laminar leak path beside the orifice), written as a parallel orifice link with exponent
-1 (existing schema). Candidates (free-run diagnoses of a rig with unmeasured tanks) for every gravity link.
+1 (existing schema). Candidates for every loaded gravity link near the localisation, on
+both paths (equation error and free run).
 """
 from __future__ import annotations
 
 from civic.plant.model import Link
 
-from .base import Mechanism, free_run
+from .base import Mechanism
 
 EXPONENT_BOUNDS = (0.15, 2.0)
 
@@ -27,7 +28,7 @@ class FlowLaw(Mechanism):
             while any(x.name == name for x in model.links):
                 name += "_"
             model.links.append(Link(name=name, from_=lk.from_, to=lk.to, coeff=float(p["linear"]),
-                                    law="orifice", exponent=1.0, valve=lk.valve, closure=lk.closure,
+                                    law=lk.law, exponent=1.0, valve=lk.valve, closure=lk.closure,
                                     min_level=lk.min_level))
 
     @property
@@ -36,11 +37,18 @@ class FlowLaw(Mechanism):
 
     @classmethod
     def candidates(cls, model, loc):
+        """Every gravity link (orifice or two-way pipe) at a tank the localisation points to,
+        whatever the error the record is judged on: a free run sees the shape through the
+        levels, the equation error of a fully measured plant sees it directly (flow against
+        head over the record). Not a link the record never loads (idle: no head, no flow),
+        nor a spill link (min_level > 0)."""
         out = []
-        if not free_run(loc):
-            return out
+        idle = set(getattr(loc, "idle_links", ()))
         for lk in model.links:
-            if lk.law != "orifice" or lk.from_ not in loc.tanks or lk.min_level > 0:
+            if lk.law not in ("orifice", "bidirectional") or lk.min_level > 0 or lk.name in idle:
+                continue
+            ends = {lk.from_} if lk.law == "orifice" else {lk.from_, lk.to}
+            if not ends & set(loc.tanks):
                 continue
             out.append(cls(lk.name, {"exponent": lk.exponent + 0.02}, {"exponent": EXPONENT_BOUNDS},
                            {"form": "exponent"}))

@@ -46,6 +46,14 @@ class Overflow(Mechanism):
                     for d in dests:
                         if d != tk.name:
                             out.append(cls(tk.name, {}, {}, {"volume": round(vol, 4), "to": d}))
+                    if model.total_volume is not None:
+                        # part of the spill leaves the circuit (splashes past the tank below):
+                        # only the inventory can tell the share, so only with a stated total
+                        for d in dests:
+                            if d not in (tk.name, OUTSIDE):
+                                out.append(cls(tk.name, {"volume": vol, "fraction": 0.6},
+                                               {"volume": (0.97 * vol, 1.005 * vol), "fraction": (0.0, 1.0)},
+                                               {"to": d, "rest": OUTSIDE}))
             elif tk.name in clipped:
                 # its sensor sits at the clip value the model already has: is the tank spilling
                 # there too (level held at the rim) rather than rising on unseen?

@@ -1,7 +1,7 @@
 """Pump dead zone: no flow below an input threshold, q = gain*max(u - u0, 0)."""
 from __future__ import annotations
 
-from .base import Mechanism, free_run
+from .base import Mechanism
 
 
 class PumpDeadZone(Mechanism):
@@ -14,8 +14,6 @@ class PumpDeadZone(Mechanism):
     @classmethod
     def candidates(cls, model, loc):
         out = []
-        if not free_run(loc):
-            return out
         for p in model.pumps:
             if p.to not in loc.tanks or p.input_offset > 0:
                 continue

@@ -6,35 +6,75 @@ model's) and exponent are fitted.
 """
 from __future__ import annotations
 
-from .base import Mechanism, free_run
+import copy as _copy
+
+import numpy as np
+
+from ..compare import INVENTORY_BAND, INVENTORY_SPREAD
+from .base import Mechanism
+from .sensor_offset import drives_no_flow
 
 
 class SensorCharacteristic(Mechanism):
     name = "sensor_characteristic"
-    hidden = ("base", "base_gain")  # the model's own offset and gain
+    hidden = ("base", "base_gain", "range", "q_mid")  # the model's offset and gain; the readings' range
 
     def edit(self, model, p):
-        s = model.find("sensor", self.component)
+        self.edit_sensor(model.find("sensor", self.component), p)
+
+    def edit_sensor(self, s, p):
         s.exponent = float(p["exponent"])
         s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
-        s.gain = float(self.fixed.get("base_gain", 1.0)) * float(p["gain"])
+        if "gain" in p:
+            g = float(p["gain"])
+        else:
+            # tied: the bent map equals the model's at the middle of the readings (q_mid), so
+            # only the bend and the offset are free and the curve cannot slide along the
+            # gain/exponent/offset valley of a narrow range (which extrapolates wildly)
+            q_mid = max(float(self.fixed.get("q_mid", 1.0)), 1e-9)
+            g = q_mid ** (1.0 - float(p["exponent"]))
+        s.gain = float(self.fixed.get("base_gain", 1.0)) * g
 
     @classmethod
     def candidates(cls, model, loc):
         out = []
-        if not free_run(loc):
-            return out
         for s in model.sensors:
             if s.name not in loc.signals_present or s.tank not in loc.tanks or s.exponent != 1.0:
                 continue
             span = max(loc.signal_span.get(s.name, 1.0), 1e-6)
+            rng = getattr(loc, "signal_range", {}).get(s.name)
             out.append(cls(s.name, {"exponent": 1.02, "offset": 0.0, "gain": 1.0},
                            {"exponent": (0.5, 2.0), "offset": (-0.25 * span, 0.25 * span), "gain": (0.2, 3.0)},
-                           {"base": s.offset, "base_gain": s.gain}))
+                           {"base": s.offset, "base_gain": s.gain, "range": rng,
+                            "q_mid": float(s.invert(0.5 * (rng[0] + rng[1]))) if rng else 1.0}))
+        return out
+
+    def tied(self) -> "SensorCharacteristic":
+        """The two-parameter variant (exponent, offset; gain tied at the readings' middle)."""
+        return type(self)(self.component, {k: v for k, v in self.params.items() if k != "gain"},
+                          {k: v for k, v in self.bounds.items() if k != "gain"}, dict(self.fixed))
+
+    def values(self, theta=None) -> dict:
+        out = super().values(theta)
+        if "gain" not in out and "exponent" in out:
+            q_mid = max(float(self.fixed.get("q_mid", 1.0)), 1e-9)
+            out["gain"] = q_mid ** (1.0 - float(out["exponent"]))
         return out
 
     def negligible(self, p, model):
         s = model.find("sensor", self.component)
+        rng = self.fixed.get("range")
+        if model.total_volume is not None and drives_no_flow(model, s.tank) and rng is not None:
+            # seen through the inventory alone (as an offset there): over the readings' range the
+            # map must move the tank's volume beyond the fill's band, or it is the fill's error
+            ys = np.linspace(rng[0], rng[1], 21)
+            fitted = s.copy() if hasattr(s, "copy") else _copy.copy(s)
+            self.edit_sensor(fitted, p)
+            q0, q1 = s.invert(ys), fitted.invert(ys)
+            scale = model.tank(s.tank).area if s.quantity == "level" else 1.0
+            band = INVENTORY_BAND * INVENTORY_SPREAD * model.total_volume
+            if float(np.max(np.abs(q1 - q0))) * scale <= band:
+                return True
         return abs(p["exponent"] - 1.0) < 0.03 and abs(p["gain"] - 1.0) < 0.03 and \
             abs(p["offset"]) < max(2.0 * s.noise_sigma, 2.0 * s.resolution)
 

@@ -1,0 +1,89 @@
+"""Real-rig physics on the closed-loop four-tank plant (issue #20): families that used to be
+candidates only on the free-run path (flow law, sensor map, pump dead zone) and a spill that
+partly leaves the plant are named on the equation-error path of the fully measured plant, as
+the only finding; the report carries the evidence (uncertainty, plot panel, alternatives)."""
+from __future__ import annotations
+
+import pytest
+
+from civic.diagnose.fit import diagnose
+
+CASES = [
+    # name, mechanism, component, parameter, true value, absolute tolerance
+    ("flowlaw_pipe23", "flow_law", "pipe23", "exponent", 0.6, 0.03),
+    ("flowlaw_V2", "flow_law", "V2", "exponent", 0.7, 0.05),
+    ("sensorchar_L2", "sensor_characteristic", "L2", None, None, None),
+    ("deadzone_P1", "pump_dead_zone", "P1", "threshold", 0.05, 0.01),
+    ("split_T1", "overflow", "T1", "fraction", 0.5, 0.1),
+]
+
+
+@pytest.mark.parametrize("name,mech,comp,par,value,tol", CASES, ids=[c[0] for c in CASES])
+def test_real_rig_effect_named(closed_loop_case, nominal, name, mech, comp, par, value, tol):
+    d = diagnose(nominal, closed_loop_case(name))
+    named = [(f["mechanism"].name, f["mechanism"].component) for f in d.findings]
+    assert named == [(mech, comp)], named
+    fitted = d.final_all.mechanisms[0].values()
+    if par is not None:
+        assert abs(fitted[par] - value) <= tol, fitted
+    assert d.findings[0]["dbic"] < -10 and d.findings[0]["gain"] > 0.2
+    # evidence: a jackknife standard error for every free parameter
+    assert d.uncertainty and set(d.uncertainty[0]["stderr"]) == set(d.final_all.mechanisms[0].names)
+    # alternatives are never findings and are within ALT_DBIC of the chosen one
+    for a in d.findings[0]["alternatives"]:
+        assert 0 <= a["dbic_vs_chosen"] < 10
+
+
+def test_report_evidence_and_alternatives(closed_loop_case, nominal):
+    """JSON: every existing key stays; each finding gets heldout_error, uncertainty,
+    alternatives (with an experiment) and a plot panel on the affected signal."""
+    from civic.diagnose.report import build_report
+
+    rec = closed_loop_case("flowlaw_V2")
+    d = diagnose(nominal, rec)
+    rep = build_report(d, rec)
+    f = rep["findings"][0]
+    for k in ("mechanism", "component", "parameters", "intervals", "evidence", "heldout_dbic",
+              "heldout_sse_reduction", "heldout_error", "uncertainty", "alternatives", "plot"):
+        assert k in f, k
+    assert f["plot"]["signal"] in ("L3", "L4")
+    assert len(f["plot"]["t"]) == len(f["plot"]["recorded"]) == len(f["plot"]["improved"]) <= 300
+    assert f["plot"]["rmse_improved"] < f["plot"]["rmse_nominal"]
+    assert f["uncertainty"]["stderr"]["exponent"] < 0.05
+    for a in f["alternatives"]:
+        assert a["experiment"] and a["heldout_error"]["weighted_sse"] > 0
+
+
+def test_alternative_experiment_names_the_separating_test():
+    from civic.diagnose.experiments import separating_experiment
+    from civic.diagnose.mechanisms import FlowLaw, Leak, SensorCharacteristic, ValveCharacteristic
+
+    fl = FlowLaw("V2", {"exponent": 0.6}, {"exponent": (0.15, 2)}, {"form": "exponent"})
+    vc = ValveCharacteristic("V2", {"n": 1.2}, {"n": (0.25, 4)})
+    assert "drain test at two V2 openings" in separating_experiment(fl, vc)
+    sc = SensorCharacteristic("L2", {"exponent": 1.1, "offset": 0.0, "gain": 1.0}, {}, {})
+    assert "static calibration of L2" in separating_experiment(fl, sc)
+    a = Leak("T1", {"c": 0.01}, {}, {"to": "T4"})
+    b = Leak("T1", {"c": 0.01}, {}, {"to": "outside"})
+    assert "inventory" in separating_experiment(a, b)
+
+
+def test_alternatives_are_the_significant_candidates_within_alt_dbic():
+    """The chosen finding is the best held-out BIC; others significant on their own and within
+    ALT_DBIC of it are alternatives (best first), the rest are not."""
+    from civic.diagnose.fit import ALT_DBIC, FitResult, _alternatives
+    from civic.diagnose.mechanisms import FlowLaw, Leak, ValveCharacteristic
+
+    def res(bic, sse):
+        return FitResult([], None, {}, 0.0, sse, bic, 1, None, fold_sse=[sse], fold_tol=0.0)
+
+    ref = res(0.0, 100.0)
+    fl = FlowLaw("V2", {"exponent": 0.6}, {"exponent": (0.15, 2)}, {"form": "exponent"})
+    vc = ValveCharacteristic("V2", {"n": 1.2}, {"n": (0.25, 4)})
+    lk = Leak("T3", {"c": 0.01}, {}, {"to": "T4"})
+    weak = Leak("T2", {"c": 0.01}, {}, {"to": "T4"})
+    results = [(fl, res(-100.0, 40.0)), (vc, res(-100.0 + ALT_DBIC / 2, 42.0)),
+               (lk, res(-100.0 + 2 * ALT_DBIC, 50.0)), (weak, res(-5.0, 95.0))]
+    alts = _alternatives(results, fl, results[0][1], ref)
+    assert [a["mechanism"] for a in alts] == [vc]
+    assert alts[0]["dbic_vs_chosen"] == ALT_DBIC / 2

@@ -22,9 +22,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from civic.config import Monitor
+from civic.envelope import FAULT_VALVE
 from civic.entries import BALANCE_SHIFT, BAND_SUM_SHIFT, SLOPE_MAX, SLOPE_MIN, FlowTerm, MonitorEntries
 from civic.errors import CivicError
 from civic.plant.model import PlantModel
+from civic.plant.procedures import FAULT_CLASSES, class_of
 from civic.wire import CLASS_CODES, ip_to_int
 
 SAMPLE_RATE = 10.0                      # messages per second
@@ -44,8 +46,9 @@ CLOSED_LOOP_UNITS = 4                   # simulated units per fault case in trai
 CLOSED_LOOP_SEED = 2026
 UNIT_SPREAD = 0.03
 PI_GAINS = ((0.2, 0.25, 0.25), (5.0, 5.0, 5.0))   # like the recorded loops: command noise ~0.6 % a message, settled within ~20 s
-FAULTS = {"balance_t3": ("vm1", {"warning": 0.30, "error": 0.55}),
-          "balance_t1": ("vm2", {"warning": 0.20, "error": 0.40})}
+# the fault each balance monitor sees is the one its tank's test procedure is for (docs/plant.md)
+SCENARIO = {"balance_t3": "drain", "balance_t1": "fill"}
+FAULTS = {m: (FAULT_VALVE[s], {c: v for c, v in FAULT_CLASSES[s].items() if v}) for m, s in SCENARIO.items()}
 
 
 # ------------------------------------------------------------------ flow terms
@@ -210,10 +213,8 @@ class ClosedLoopRun:
         if self.onset_s is None:
             return out
         out[(t >= self.onset_s) & (t < self.onset_s + SETTLE_S)] = 0
-        valve, classes = FAULTS.get(monitor, (None, {}))
-        if valve == self.fault:
-            cls = min(classes, key=lambda c: abs(classes[c] - self.closure))
-            out[t >= self.onset_s + SETTLE_S] = CLASS_CODES[cls]
+        if monitor in FAULTS and FAULTS[monitor][0] == self.fault:
+            out[t >= self.onset_s + SETTLE_S] = CLASS_CODES[class_of(SCENARIO[monitor], self.closure)]
         return out
 
 

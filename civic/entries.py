@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +40,13 @@ class FlowTerm:
     head: tuple[str, str]
     command: str
     rows: np.ndarray
+
+    @cached_property
+    def table(self):
+        """The rows as a RangeTable on (head, cmd), built once (the lookup every message uses)."""
+        from civic.pipeline.classification import RangeTable
+
+        return RangeTable(self.rows[:, [0, 2]], self.rows[:, [1, 3]])
 
     def to_json(self) -> dict:
         return {"head": list(self.head), "command": self.command,

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
-from civic.plant.model import PlantModel
+from civic.plant.model import DATASHEET, PlantModel
 from civic.plant.procedures import FAULT_CLASSES, apply_faults, make_procedure, run_procedure
 from civic.plant.simulate import from_wire, measured_state, simulate, to_wire
 from civic.wire import CLASS_CODES, MESSAGE_DTYPE, ip_to_int, read_pcap
@@ -193,5 +193,5 @@ def calibrated(folder: str | Path, labels: list[dict], config, model: PlantModel
     """The envelope of `civic train`'s default: the plant model (default configs/plant.toml)
     calibrated to the labelled recordings in `folder`."""
     if model is None:
-        model = PlantModel.from_toml(Path(__file__).resolve().parent.parent / "configs" / "plant.toml")
+        model = PlantModel.from_toml(DATASHEET)
     return Envelope(model).fit(load_recorded(folder, labels, config.udp_port, config.plant_prefix))

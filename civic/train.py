@@ -324,10 +324,10 @@ def train(runs: list[Run], config: MonitorConfig, estimator: str, banded: bool, 
         from civic.continuous import CLOSED_LOOP_UNITS, CLOSED_LOOP_SEED, UNIT_SPREAD, closed_loop_runs, train_balance
 
         plant = envelope.model_ if envelope is not None else model
-        if plant is None:                      # the datasheet model
-            from civic.plant.model import PlantModel
+        if plant is None:
+            from civic.plant.model import DATASHEET, PlantModel
 
-            plant = PlantModel.from_toml(Path(__file__).resolve().parent.parent / "configs" / "plant.toml")
+            plant = PlantModel.from_toml(DATASHEET)
         sims = closed_loop_runs(plant, CLOSED_LOOP_UNITS, UNIT_SPREAD, CLOSED_LOOP_SEED, progress=progress)
         training["closed_loop"] = {"simulated_runs": len(sims), "unit_spread": UNIT_SPREAD, "monitors": {}}
         for mon in balances:

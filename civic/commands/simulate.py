@@ -53,7 +53,9 @@ def default_model_path() -> Path:
     here = Path("configs/plant.toml")
     if here.exists():
         return here
-    return Path(__file__).resolve().parents[2] / "configs" / "plant.toml"
+    from civic.plant.model import DATASHEET
+
+    return DATASHEET
 
 
 def run(args) -> int:
@@ -155,7 +157,8 @@ def _fleet(args, model) -> int:
         raise CivicError("--plants closed-loop takes no --v0, --schedule or --truth")
     if scenario == "closed-loop" and args.labels and args.onset is None:
         raise CivicError("--labels in closed loop needs --onset (the time the fault comes on)")
-    cycle = [{}, {"vm1": 0.30}, {"vm1": 0.55}, {"vm2": 0.20}, {"vm2": 0.40}]
+    from civic.continuous import FAULTS
+    cycle = [{}] + [{valve: c} for valve, classes in FAULTS.values() for c in classes.values()]
     valve = {"drain": "vm1", "fill": "vm2"}.get(scenario)
     times, frames, rows = [], [], []
     with progress_bar() as progress:
@@ -199,15 +202,15 @@ def _fleet(args, model) -> int:
 def closed_loop_labels(file: str, faults: dict, onset: float, seed, src_ip: str) -> list[dict]:
     """One row per balance monitor: the class it should report from the onset on (columns of
     traces/continuous/labels.csv)."""
-    from civic.continuous import FAULTS
+    from civic.continuous import FAULTS, SCENARIO
+    from civic.plant.procedures import class_of
 
     rows = []
-    for monitor, (valve, classes) in FAULTS.items():
-        closure = faults.get(valve, 0.0)
-        cls = "normal" if not closure else min(classes, key=lambda c: abs(classes[c] - closure))
-        fault = next(iter(faults), "none").upper()
+    fault = next(iter(faults), None)
+    for monitor, (valve, _) in FAULTS.items():
+        cls = class_of(SCENARIO[monitor], faults.get(valve, 0.0))
         rows.append({"file": file, "scenario": "closed_loop", "monitor": monitor, "class": cls,
-                     "fault": fault if fault != "NONE" else "none", "closure": max(faults.values(), default=0.0),
+                     "fault": fault.upper() if fault else "none", "closure": max(faults.values(), default=0.0),
                      "onset_s": "" if not faults else onset, "unit_seed": "", "seed": seed, "src_ip": src_ip,
                      "set": "simulated"})
     return rows

@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 
 from civic.entries import BALANCE_SHIFT, BAND_SUM_SHIFT, FlowTerm
-from civic.pipeline.classification import range_table
 
 U16, U32 = 0xFFFF, 0xFFFFFFFF
 
@@ -34,7 +33,7 @@ def flow(fields: dict, term: FlowTerm) -> tuple[np.ndarray, np.ndarray]:
     head, cmd = keys(fields, term)
     if not len(term.rows):
         return np.zeros(head.shape, np.int64), np.zeros(head.shape, np.int64)
-    hit = range_table(term.rows, 2).lookup(head, cmd)
+    hit = term.table.lookup(head, cmd)
     return (np.where(hit >= 0, term.rows[hit, 4], 0).astype(np.int64),
             np.where(hit >= 0, term.rows[hit, 5], 0).astype(np.int64))
 

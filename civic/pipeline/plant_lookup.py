@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from civic.config import STEP_FIELDS
+
 MAX_PLANTS = 256
 SEQ_MASK = 0xFFFFFFFF
 COMMANDS = ("p1", "v1", "v2")
-STEPS = ("dp1", "dv1", "dv2")             # |command - the plant's previous command|
+STEPS = STEP_FIELDS                       # |command - the plant's previous command|, in COMMANDS order
 
 
 def plant_slot(src):

@@ -61,7 +61,6 @@ class SwitchModel:
         self.cand = np.zeros((n, self.plants), dtype=np.int64)
         self.hold = np.zeros((n, self.plants), dtype=np.int64)
         self.rings = [data_collection.RingState(self.plants, m.ring_len) for m in self.entries.monitors]
-        n = len(self.entries.monitors)
         self.last_class = np.zeros((n, self.plants), dtype=np.int64)
         self.counts = np.zeros((n, self.plants, notify.CLASSES), dtype=np.int64)
         self.changes: list[notify.Change] = []

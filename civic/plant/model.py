@@ -15,6 +15,7 @@ import numpy as np
 from civic.errors import CivicError
 from civic.files import read_toml
 
+DATASHEET = Path(__file__).resolve().parents[2] / "configs" / "plant.toml"   # docs/plant.md as a model file
 OUTSIDE = "outside"
 LAWS = ("orifice", "bidirectional")
 QUANTITIES = ("volume", "level")

@@ -297,7 +297,6 @@ class BalanceClassifier:
         strong = band >= np.quantile(band[visible], 0.5)
         self.t1_ = _cut(r, normal & strong, (warn | err) & strong)
         self.t2_ = _cut(r, warn & strong, err & strong) if warn.any() and err.any() else np.inf
-        self.q_min_ = 0.0
         self.q_min_ = self._min_band(resid, band, y)
         return self
 
@@ -305,7 +304,7 @@ class BalanceClassifier:
         """The upper edge of the highest 10 %-band, below the scored windows' median band, in which
         the cuts misclassify more than BAND_ERROR (sensor noise outweighs the fault there)."""
         scored = (y > 0) & (band > 0)
-        wrong = self.predict(resid, band) != y
+        wrong = self._by_cuts(resid, band) != y
         median = np.median(band[scored])
         edges = np.geomspace(max(band[scored].min(), 1.0), median, 40)
         q_min = edges[0]
@@ -315,11 +314,13 @@ class BalanceClassifier:
                 q_min = hi
         return float(q_min)
 
+    def _by_cuts(self, resid, band) -> np.ndarray:
+        """The class the two cuts give, whatever the band."""
+        r = self.direction_ * np.asarray(resid, float) / np.maximum(np.asarray(band, float), 1e-9)
+        return np.where(r >= self.t2_, 3, np.where(r >= self.t1_, 2, 1))
+
     def predict(self, resid, band) -> np.ndarray:
-        resid, band = np.asarray(resid, float), np.asarray(band, float)
-        r = self.direction_ * resid / np.maximum(band, 1e-9)
-        out = np.where(r >= self.t2_, 3, np.where(r >= self.t1_, 2, 1))
-        return np.where(band < self.q_min_, 0, out)
+        return np.where(np.asarray(band, float) < self.q_min_, 0, self._by_cuts(resid, band))
 
     def score(self, resid, band, y) -> float:
         y = np.asarray(y)

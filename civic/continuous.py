@@ -41,7 +41,6 @@ BAND_TOP = 5000                         # 500 mL/s: the last band covers everyth
 NOISE_MARGIN = 4.0                      # faulty windows with a band this many residual sigmas up place the cuts
 HOLDS = (5, 10, 15, 20, 30, 40, 50, 60, 80, 100)   # candidate holds, messages
 HOLD_MARGIN = 1.5
-SETTLE_S = 60.0                         # the minute after an onset is not scored
 CLOSED_LOOP_UNITS = 4                   # simulated units per fault case in training
 CLOSED_LOOP_SEED = 2026
 UNIT_SPREAD = 0.03
@@ -208,14 +207,12 @@ class ClosedLoopRun:
     def truth(self, monitor: str) -> np.ndarray:
         """Expected class per message: normal before the onset, the fault's class from onset + 60 s
         on for the monitor it touches (normal for the others), 0 (not scored) in between."""
-        t = self.msgs["t"] - self.msgs["t"][0]
-        out = np.full(len(t), CLASS_CODES["normal"])
-        if self.onset_s is None:
-            return out
-        out[(t >= self.onset_s) & (t < self.onset_s + SETTLE_S)] = 0
+        from civic.evaluate import expected_classes
+
+        cls = "normal"
         if monitor in FAULTS and FAULTS[monitor][0] == self.fault:
-            out[t >= self.onset_s + SETTLE_S] = CLASS_CODES[class_of(SCENARIO[monitor], self.closure)]
-        return out
+            cls = class_of(SCENARIO[monitor], self.closure)
+        return expected_classes(self.msgs["t"] - self.msgs["t"][0], CLASS_CODES[cls], self.onset_s)
 
 
 def closed_loop_runs(model: PlantModel, units: int, spread: float, seed: int, duration: float = 900.0,

@@ -86,20 +86,31 @@ def find_output(out: Path, name: str, single: bool) -> Path | None:
     return out if single or out.name == name else None
 
 
-def evaluate(out: str | Path, labels: list[dict], config: MonitorConfig | Entries) -> dict[str, MonitorResult]:
-    """Score the verdicts in replayed recordings (a file or a folder) against labels."""
+class Labelled(NamedTuple):
+    """One label row as the switch model saw its recording: the row, the plant messages it is about
+    (their indices in the capture), the verdict code given there and what the monitor computed."""
+
+    row: dict
+    n: int                # the row's number in labels.csv (header = 1)
+    msgs: np.ndarray      # the whole capture
+    rows: np.ndarray      # indices of the row's plant messages in msgs
+    code: np.ndarray      # this monitor's verdict code on them
+    trace: object         # MonitorTrace of the whole capture (sel picks the row's plant)
+    sel: np.ndarray       # the row's plant among the capture's plant messages
+
+
+def labelled(out: str | Path, labels: list[dict], config: MonitorConfig | Entries):
+    """Every label row whose recording is in `out` (a file or a folder), replayed through the switch
+    model once per recording (for what the monitors computed) next to the verdicts found there."""
     out = Path(out)
     if not out.exists():
         raise CivicError(f"{out}: no such file or directory")
-    files = {r["file"] for r in labels}
-    single = out.is_file() and len(files) == 1
-    monitors = config.monitors
-    names = [m.name for m in monitors]
+    single = out.is_file() and len({r["file"] for r in labels}) == 1
+    names = [m.name for m in config.monitors]
     probe = config if isinstance(config, Entries) else probe_entries(config, "lsq")
-    results = {n: MonitorResult(n) for n in names}
     cache = {}
     matched = 0
-    for row in labels:
+    for i, row in enumerate(labels):
         path = find_output(out, row["file"], single)
         if path is None:
             continue
@@ -111,18 +122,27 @@ def evaluate(out: str | Path, labels: list[dict], config: MonitorConfig | Entrie
             cache[path] = (cap.messages, *SwitchModel(probe).traces(cap.messages))
         msgs, idx, traces = cache[path]
         m = names.index(row["monitor"])
-        tr = traces[m]
         sel = np.ones(len(idx), bool)
         if row.get("src_ip"):
             sel &= msgs["src"][idx] == ip_to_int(row["src_ip"])
-        code = monitor_verdict(msgs["verdict"][idx][sel], m).astype(int)
+        yield Labelled(row, i + 2, msgs, idx[sel], monitor_verdict(msgs["verdict"][idx][sel], m).astype(int),
+                       traces[m], sel)
+    if matched == 0:
+        raise CivicError(f"{out}: none of the labelled recordings found there")
+
+
+def evaluate(out: str | Path, labels: list[dict], config: MonitorConfig | Entries) -> dict[str, MonitorResult]:
+    """Score the verdicts in replayed recordings (a file or a folder) against labels."""
+    results = {m.name: MonitorResult(m.name) for m in config.monitors}
+    for lab in labelled(out, labels, config):
+        row, code, tr, sel = lab.row, lab.code, lab.trace, lab.sel
         cls = CLASS_CODES[row["class"]]
         ev = code != 0
         res = results[row["monitor"]]
         res.true.append(np.full(int(ev.sum()), cls))
         res.pred.append(code[ev])
         res.qualified += int(tr.evaluated[sel].sum())
-        t = msgs["t"][idx][sel]
+        t = lab.msgs["t"][lab.rows]
         start = np.flatnonzero(tr.run[sel] == 1)
         hit = np.flatnonzero(code == cls)
         if len(start) and len(hit):
@@ -130,8 +150,6 @@ def evaluate(out: str | Path, labels: list[dict], config: MonitorConfig | Entrie
         res.runs.append(ScoredRun(f"{row['file']} {row.get('src_ip', '')}".strip(), cls, t - t[0] if len(t) else t,
                                   tr.slope[sel] * tr.monitor.slope_scale, tr.level[sel], code,
                                   tr.resid[sel] * tr.monitor.slope_scale))
-    if matched == 0:
-        raise CivicError(f"{out}: none of the labelled recordings found there")
     return results
 
 
@@ -271,43 +289,19 @@ def closed_loop_summary(runs: list[TimelineRun], dt: float = 0.1) -> dict:
 def evaluate_closed_loop(out: str | Path, labels: list[dict], config: MonitorConfig | Entries
                          ) -> dict[str, list[TimelineRun]]:
     """Per monitor, every labelled closed-loop run (labels with an onset_s column) as it saw it."""
-    out = Path(out)
-    if not out.exists():
-        raise CivicError(f"{out}: no such file or directory")
-    files = {r["file"] for r in labels}
-    single = out.is_file() and len(files) == 1
-    names = [m.name for m in config.monitors]
-    probe = config if isinstance(config, Entries) else probe_entries(config, "lsq")
-    results: dict[str, list[TimelineRun]] = {n: [] for n in names}
-    cache = {}
-    for i, row in enumerate(labels):
-        path = find_output(out, row["file"], single)
-        if path is None:
-            continue
-        if row["monitor"] not in names:
-            raise CivicError(f"labels: monitor {row['monitor']!r} is not configured ({', '.join(names)})")
+    results: dict[str, list[TimelineRun]] = {m.name: [] for m in config.monitors}
+    for lab in labelled(out, labels, config):
+        row, msgs, rows = lab.row, lab.msgs, lab.rows
         try:
             onset = float(row["onset_s"]) if (row.get("onset_s") or "").strip() else None
         except ValueError:
-            raise CivicError(f"labels: row {i + 2}: onset_s {row['onset_s']!r} is not a number") from None
-        if path not in cache:
-            cap = read_pcap(path, config.udp_port, config.plant_prefix)
-            cache[path] = (cap.messages, *SwitchModel(probe).traces(cap.messages))
-        msgs, idx, traces = cache[path]
-        m = names.index(row["monitor"])
-        sel = np.ones(len(idx), bool)
-        if row.get("src_ip"):
-            sel &= msgs["src"][idx] == ip_to_int(row["src_ip"])
-        rows = idx[sel]
+            raise CivicError(f"labels: row {lab.n}: onset_s {row['onset_s']!r} is not a number") from None
         t = msgs["t"][rows] - (msgs["t"][rows][0] if len(rows) else 0.0)
         cls = CLASS_CODES[row["class"]]
-        tr = traces[m]
         results[row["monitor"]].append(TimelineRun(
             f"{row['file']} {row.get('src_ip', '')}".strip(), cls, onset, t, expected_classes(t, cls, onset),
-            monitor_verdict(msgs["verdict"][rows], m).astype(int), tr.resid[sel] * tr.monitor.slope_scale,
+            lab.code, lab.trace.resid[lab.sel] * lab.trace.monitor.slope_scale,
             np.stack([msgs[k][rows] for k in ("l1", "l2", "l3", "l4")], axis=1)))
-    if not any(results.values()):
-        raise CivicError(f"{out}: none of the labelled recordings found there")
     return results
 
 

@@ -7,7 +7,9 @@ import numpy as np
 
 from civic.entries import Entries
 from civic.events import digest_changes, event, place
-from civic.pipeline import SwitchModel
+from civic.errors import CivicError
+from civic.pcap_chunks import PcapChunks
+from civic.pipeline.stream import StreamingSwitch, changes
 from civic.report import progress_bar
 from civic.wire import Capture, read_pcap
 
@@ -28,28 +30,54 @@ def replay_files(inputs: list[Path], outputs: list[Path], entries: Entries, entr
     names = [m.name for m in entries.monitors]
     captures = []
     with progress_bar() as progress:
-        task = progress.add_task("replaying", total=len(inputs))
+        task = progress.add_task("replaying", total=sum(p.stat().st_size for p in inputs if p.exists()))
         for src, dst in zip(inputs, outputs):
+            if target == "model":  # a freshly reset software switch per input, the file streamed
+                add = replay_stream(src, dst, StreamingSwitch(entries), entries, events, names,
+                                    lambda n: progress.advance(task, n))
+                for k, v in add.items():
+                    stats[k] = max(stats.get(k, v), v) if k == "t_end" else stats[k] + v
+                continue
             cap = read_pcap(src, entries.udp_port, entries.plant_prefix)
             stats["frames"] += len(cap)
             stats["plant"] += int(cap.messages["plant"].sum())
             if len(cap):
                 stats["t_end"] = max(stats.get("t_end", 0.0), float(cap.messages["t"].max()))
-            if target == "model":  # a freshly reset software switch per input
-                msgs = cap.messages
-                if events is None:
-                    cap.set_verdicts(SwitchModel(entries).run(msgs))
-                else:                    # the verdicts and their changes from one pass
-                    verdicts, changes = SwitchModel(entries).run_with_changes(msgs)
-                    events += [event(c, msgs["t"][c.index], names) for c in changes]
-                    cap.set_verdicts(verdicts)
-                cap.write(dst)
-                stats["evaluated"] += with_verdict(cap)
-            else:
-                captures.append((cap, dst))
-            progress.advance(task)
+            captures.append((cap, dst))
+            progress.advance(task, Path(src).stat().st_size)
     if target == "bmv2":
         stats["evaluated"], stats["missing"] = replay_on_bmv2(captures, entries_path, pipeline, events, names)
+    return stats
+
+
+def replay_stream(src: Path, dst: Path, switch: StreamingSwitch, entries: Entries, events: list | None = None,
+                  names: list[str] = (), advance=lambda n: None) -> dict:
+    """One recording through the streaming switch, chunk by chunk (bounded memory), into dst."""
+    chunks = PcapChunks(src, entries.udp_port, entries.plant_prefix)
+    stats = {"frames": 0, "plant": 0, "evaluated": 0}
+    index = 0
+    try:
+        out = open(dst, "wb")
+    except OSError as exc:
+        raise CivicError(f"cannot write {dst}: {exc.strerror}") from exc
+    with out:
+        out.write(chunks.header)
+        advance(len(chunks.header))
+        for chunk in chunks:
+            plant = chunk.plant
+            rows = switch.process(chunk.buf, chunk.offset, plant)
+            out.write(chunk.records())
+            stats["frames"] += len(chunk)
+            stats["plant"] += int(np.count_nonzero(plant))
+            stats["evaluated"] += int(np.count_nonzero(chunk.heads["verdict"][plant]))
+            stats["t_end"] = max(stats.get("t_end", 0.0), float(chunk.times().max()))
+            if events is not None and len(rows):
+                heads = chunk.heads
+                t = chunk.times(rows[:, 0])
+                events += [event(c, t[j], names) for j, c in
+                           enumerate(changes(rows, heads["src"], heads["seq"], index))]
+            index += len(chunk)
+            advance(chunk.end)
     return stats
 
 

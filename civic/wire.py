@@ -9,6 +9,7 @@ writes it back byte-identical except for patched verdicts and checksums.
 from __future__ import annotations
 
 import ipaddress
+import os
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -139,12 +140,22 @@ def incremental_checksum(csum, old, new):
 
 
 def _u32_at(arr: np.ndarray, positions: np.ndarray, order: str) -> np.ndarray:
-    """The 32-bit unsigned integers at byte positions, in the file's byte order."""
+    """The 32-bit unsigned integers at byte positions, in the file's byte order (a strided view
+    where the positions are evenly spaced, the usual capture)."""
+    n = len(positions)
+    if n > 1:
+        step = int(positions[1] - positions[0])
+        if step >= 4 and int(positions[-1]) == int(positions[0]) + step * (n - 1) and \
+                np.all(np.diff(positions) == step):
+            return np.ndarray((n,), order + "u4", arr, int(positions[0]), (step,)).astype(np.uint32)
     return np.ascontiguousarray(arr[positions[:, None] + np.arange(4)]).view(order + "u4").ravel()
 
 
-def _record_offsets(raw: memoryview, order: str, start: int, path: str) -> tuple[np.ndarray, np.ndarray]:
-    """Find every record: runs of equal-length records are found vectorized."""
+def record_offsets(raw, order: str, start: int, path: str, final: bool = True,
+                   base: int = 0) -> tuple[np.ndarray, np.ndarray, int]:
+    """(record offsets, caplens, end) of the records in raw[start:]; runs of equal-length records
+    are found vectorized. A record cut off at the end is an error when `final`, else where the
+    scan stops (`end`). `base`: raw's offset in the file, for error messages."""
     size = len(raw)
     arr = np.frombuffer(raw, dtype=np.uint8)
     len_fmt = order + "I"
@@ -153,25 +164,52 @@ def _record_offsets(raw: memoryview, order: str, start: int, path: str) -> tuple
     look = 64
     while pos < size:
         if size - pos < 16:
-            raise CivicError(f"{path}: truncated pcap: {size - pos} stray bytes at offset {pos}")
+            if not final:
+                break
+            raise CivicError(f"{path}: truncated pcap: {size - pos} stray bytes at offset {base + pos}")
         (cap,) = struct.unpack_from(len_fmt, raw, pos + 8)
         if cap > 0x40000:
-            raise CivicError(f"{path}: corrupt pcap: record at offset {pos} claims {cap} bytes")
+            raise CivicError(f"{path}: corrupt pcap: record at offset {base + pos} claims {cap} bytes")
         if pos + 16 + cap > size:
-            raise CivicError(f"{path}: truncated pcap: record at offset {pos} needs {cap} bytes, "
+            if not final:
+                break
+            raise CivicError(f"{path}: truncated pcap: record at offset {base + pos} needs {cap} bytes, "
                              f"{size - pos - 16} remain")
         step = 16 + cap
         k = min(look, (size - pos) // step)
-        cand = pos + step * np.arange(k, dtype=np.int64)
-        bad = np.flatnonzero(_u32_at(arr, cand + 8, order) != cap)
+        lens = np.ndarray((k,), order + "u4", arr, pos + 8, (step,))
+        bad = np.flatnonzero(lens != cap)
         good = int(bad[0]) if len(bad) else k
-        offsets.append(cand[:good])
+        offsets.append(pos + step * np.arange(good, dtype=np.int64))
         pos += good * step
         look = look * 2 if good == k else 64
     if not offsets:
-        return np.zeros(0, np.int64), np.zeros(0, np.uint32)
+        return np.zeros(0, np.int64), np.zeros(0, np.uint32), pos
     rec = np.concatenate(offsets)
-    return rec, _u32_at(arr, rec + 8, order)
+    return rec, _u32_at(arr, rec + 8, order), pos
+
+
+def record_times(arr: np.ndarray, rec: np.ndarray, order: str, frac: int) -> np.ndarray:
+    """Capture time (s) of the records at offsets rec."""
+    return _u32_at(arr, rec, order) + _u32_at(arr, rec + 4, order) / frac
+
+
+def pcap_header(head: bytes, path: str) -> tuple[str, int]:
+    """(byte order, fraction per second) of a classic Ethernet pcap's file header; errors are one line."""
+    if len(head) < 24:
+        if len(head) >= 4 and struct.unpack_from("<I", head)[0] == PCAPNG_MAGIC:
+            raise CivicError(f"{path}: pcapng is not supported; convert it with 'editcap -F pcap'")
+        raise CivicError(f"{path}: not a pcap file (only {len(head)} bytes)")
+    (magic,) = struct.unpack_from("<I", head)
+    if magic == PCAPNG_MAGIC:
+        raise CivicError(f"{path}: pcapng is not supported; convert it with 'editcap -F pcap'")
+    if magic not in PCAP_MAGICS:
+        raise CivicError(f"{path}: not a pcap file (magic 0x{magic:08x})")
+    order, frac = PCAP_MAGICS[magic]
+    linktype = struct.unpack_from(order + "I", head, 20)[0] & 0x0FFFFFFF
+    if linktype != LINKTYPE_ETHERNET:
+        raise CivicError(f"{path}: link type {linktype} is not Ethernet (1)")
+    return order, frac
 
 
 # the first FRAME_LEN bytes of a frame, as big-endian fields at their byte offsets
@@ -200,6 +238,18 @@ def frame_heads(buf: np.ndarray, offset: np.ndarray, caplen: np.ndarray) -> np.n
     return head.view(HEAD_DTYPE).reshape(n)
 
 
+def frame_kinds(head: np.ndarray, caplen: np.ndarray, udp_port: int,
+                plant_prefix: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ipv4, udp, plant) masks of frames from their heads: the parser's checks (pipeline.md 1)."""
+    ipv4 = (caplen >= ETH_LEN + IPV4_LEN) & (head["ethertype"] == 0x0800) & (head["ver_ihl"] == 0x45)
+    udp = ipv4 & (head["proto"] == 17) & ((head["flags_frag"] & 0x3FFF) == 0) & (caplen >= OFF_UDP + 8)
+    net, plen = parse_prefix(plant_prefix)
+    mask = (0xFFFFFFFF << (32 - plen)) & 0xFFFFFFFF
+    plant = (udp & (head["dport"] == udp_port) & (head["udp_len"] == UDP_LEN) & (caplen >= FRAME_LEN)
+             & ((head["src"] & mask) == net))
+    return ipv4, udp, plant
+
+
 def decode_frames(data, offset: np.ndarray, caplen: np.ndarray, udp_port: int = DEFAULT_UDP_PORT,
                   plant_prefix: str = DEFAULT_PLANT_PREFIX) -> np.ndarray:
     """Decode the plant-message fields of every frame (docs/pipeline.md section 1)."""
@@ -208,12 +258,7 @@ def decode_frames(data, offset: np.ndarray, caplen: np.ndarray, udp_port: int = 
     if n == 0:
         return msg
     head = frame_heads(np.frombuffer(data, dtype=np.uint8), offset, caplen)
-    ipv4 = (caplen >= ETH_LEN + IPV4_LEN) & (head["ethertype"] == 0x0800) & (head["ver_ihl"] == 0x45)
-    udp = ipv4 & (head["proto"] == 17) & ((head["flags_frag"] & 0x3FFF) == 0) & (caplen >= OFF_UDP + 8)
-    net, plen = parse_prefix(plant_prefix)
-    mask = (0xFFFFFFFF << (32 - plen)) & 0xFFFFFFFF
-    plant = (udp & (head["dport"] == udp_port) & (head["udp_len"] == UDP_LEN) & (caplen >= FRAME_LEN)
-             & ((head["src"] & mask) == net))
+    ipv4, udp, plant = frame_kinds(head, caplen, udp_port, plant_prefix)
     msg["plant"] = plant
     if plant.all():
         msg["src"], msg["dport"] = head["src"], head["dport"]
@@ -232,29 +277,18 @@ def read_pcap(path: str | Path, udp_port: int = DEFAULT_UDP_PORT,
     """Read a classic pcap (Ethernet link type) into a Capture, without scapy."""
     path = str(path)
     try:
-        raw = Path(path).read_bytes()
+        with open(path, "rb") as fh:
+            data = bytearray(os.fstat(fh.fileno()).st_size)
+            data = data[:fh.readinto(data)]
     except OSError as exc:
         raise CivicError(f"cannot read {path}: {exc.strerror}") from exc
-    if len(raw) < 24:
-        if len(raw) >= 4 and struct.unpack_from("<I", raw)[0] == PCAPNG_MAGIC:
-            raise CivicError(f"{path}: pcapng is not supported; convert it with 'editcap -F pcap'")
-        raise CivicError(f"{path}: not a pcap file (only {len(raw)} bytes)")
-    (magic,) = struct.unpack_from("<I", raw)
-    if magic == PCAPNG_MAGIC:
-        raise CivicError(f"{path}: pcapng is not supported; convert it with 'editcap -F pcap'")
-    if magic not in PCAP_MAGICS:
-        raise CivicError(f"{path}: not a pcap file (magic 0x{magic:08x})")
-    order, frac = PCAP_MAGICS[magic]
-    linktype = struct.unpack_from(order + "I", raw, 20)[0] & 0x0FFFFFFF
-    if linktype != LINKTYPE_ETHERNET:
-        raise CivicError(f"{path}: link type {linktype} is not Ethernet (1)")
-    rec, caplen = _record_offsets(memoryview(raw), order, 24, path)
-    data = bytearray(raw)
+    order, frac = pcap_header(bytes(data[:24]), path)
+    rec, caplen, _ = record_offsets(memoryview(data), order, 24, path)
     offset = rec + 16
     messages = decode_frames(data, offset, caplen, udp_port, plant_prefix)
-    arr = np.frombuffer(raw, dtype=np.uint8)
-    messages["t"] = _u32_at(arr, rec, order) + _u32_at(arr, rec + 4, order) / frac
+    messages["t"] = record_times(np.frombuffer(data, np.uint8), rec, order, frac)
     return Capture(data=data, offset=offset, caplen=caplen, messages=messages, path=path)
+
 
 def ipv4_checksum(headers: np.ndarray) -> np.ndarray:
     """Internet checksum of (n, 20) IPv4 header bytes with the checksum field zeroed."""

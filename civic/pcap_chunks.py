@@ -1,0 +1,103 @@
+"""A classic pcap read in chunks of whole records: bounded memory whatever the file's size.
+
+`PcapChunks(path)` checks the file header (one-line errors, as `read_pcap`) and iterates
+`Chunk`s: the bytes of consecutive records (record headers included, so writing each chunk's
+`data` after `header` gives the file back), where each frame starts and which frames are plant
+messages. A record cut off at the end of the file is the same one-line error as `read_pcap`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from civic.errors import CivicError
+from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, frame_heads, frame_kinds, pcap_header,
+                        record_offsets, record_times)
+
+CHUNK_BYTES = 4 << 20          # file bytes read per chunk (about 54 k plant-message records)
+RECORD_HEADER = 16
+
+
+@dataclass
+class Chunk:
+    """Consecutive records of a pcap file: data[:end] holds them, rec[i] is where record i starts."""
+
+    data: bytearray
+    end: int
+    rec: np.ndarray
+    caplen: np.ndarray
+    order: str
+    frac: int
+    udp_port: int
+    plant_prefix: str
+
+    def __len__(self) -> int:
+        return len(self.rec)
+
+    @cached_property
+    def buf(self) -> np.ndarray:
+        return np.frombuffer(self.data, np.uint8)
+
+    @property
+    def offset(self) -> np.ndarray:
+        """Where each frame starts in data."""
+        return self.rec + RECORD_HEADER
+
+    @cached_property
+    def heads(self) -> np.ndarray:
+        """Every frame's head fields (wire.HEAD_DTYPE), a view on data."""
+        return frame_heads(self.buf, self.offset, self.caplen)
+
+    @cached_property
+    def plant(self) -> np.ndarray:
+        """Which frames are plant messages (the parser's checks)."""
+        if not len(self):
+            return np.zeros(0, bool)
+        return frame_kinds(self.heads, self.caplen, self.udp_port, self.plant_prefix)[2]
+
+    def times(self, idx=slice(None)) -> np.ndarray:
+        """Capture times (s) of the records idx."""
+        return record_times(self.buf, self.rec[idx], self.order, self.frac)
+
+    def records(self) -> memoryview:
+        """The records' bytes, as they go back into a file."""
+        return memoryview(self.data)[:self.end]
+
+
+class PcapChunks:
+    """Iterate a pcap file's records in chunks of about `chunk_bytes`."""
+
+    def __init__(self, path: str | Path, udp_port: int = DEFAULT_UDP_PORT,
+                 plant_prefix: str = DEFAULT_PLANT_PREFIX, chunk_bytes: int = CHUNK_BYTES):
+        self.path = str(path)
+        self.udp_port, self.plant_prefix, self.chunk_bytes = udp_port, plant_prefix, chunk_bytes
+        try:
+            with open(self.path, "rb") as fh:
+                self.header = fh.read(24)
+        except OSError as exc:
+            raise CivicError(f"cannot read {self.path}: {exc.strerror}") from exc
+        self.order, self.frac = pcap_header(self.header, self.path)
+
+    def __iter__(self):
+        pending = bytearray()
+        base = len(self.header)                      # file offset of pending's first byte
+        try:
+            fh = open(self.path, "rb")
+        except OSError as exc:
+            raise CivicError(f"cannot read {self.path}: {exc.strerror}") from exc
+        with fh:
+            fh.seek(base)
+            while True:
+                block = fh.read(self.chunk_bytes)
+                final = not block
+                data = pending + block
+                rec, caplen, end = record_offsets(memoryview(data), self.order, 0, self.path, final, base)
+                if len(rec):
+                    yield Chunk(data, end, rec, caplen, self.order, self.frac, self.udp_port, self.plant_prefix)
+                if final:
+                    return
+                pending = data[end:]
+                base += end

@@ -13,15 +13,16 @@ HOLD_MAX = 255
 
 
 class RangeTable:
-    """A range-match table of disjoint entries on k keys: a packet hits at most one entry, so the
-    lookup is a binary search per key over the entries' edges into a grid of entry indices (the
-    P4 table's result whatever the priorities; -1 on a miss)."""
+    """A range-match table on k keys, looked up by a binary search per key over the entries'
+    edges into a grid of entry indices (-1 on a miss). Where entries overlap, the earlier one
+    wins, as in the switch, where entry i gets priority PRIORITY_BASE - i (entries that
+    `civic train` writes never overlap; the grid is resolved once, when it is built)."""
 
     def __init__(self, lo: np.ndarray, hi: np.ndarray):
         lo, hi = np.atleast_2d(np.asarray(lo, np.int64)), np.atleast_2d(np.asarray(hi, np.int64))
         self.edges = [np.unique(np.concatenate((lo[:, j], hi[:, j] + 1))) for j in range(lo.shape[1])]
         self.grid = np.full([len(e) + 1 for e in self.edges], -1, np.int64)
-        for r in range(len(lo)):
+        for r in reversed(range(len(lo))):          # the highest-priority entry written last
             cells = tuple(slice(int(np.searchsorted(e, lo[r, j], "right")), int(np.searchsorted(e, hi[r, j], "right")) + 1)
                           for j, e in enumerate(self.edges))
             self.grid[cells] = r

@@ -1,4 +1,4 @@
-"""Balance monitors, command steps, hold and range lookups in the software switch (pipeline.md 3, 3b)."""
+"""Balance monitors, command steps and hold in the software switch (pipeline.md 3, 3b)."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 
 from civic.entries import parse_entries
 from civic.pipeline import SwitchModel
-from civic.pipeline.classification import RangeTable, holds, next_hold
+from civic.pipeline.classification import holds, next_hold
 from civic.pipeline.plant_lookup import command_steps, command_steps_stream
 from civic.wire import MESSAGE_DTYPE, monitor_verdict, read_pcap
 from data import ROOT
@@ -49,25 +49,6 @@ def test_command_steps_from_the_previous_message():
         row = {k: int(v[i]) for k, v in f.items()}
         assert command_steps(row, last) == {d: int(fast[d][i]) for d in fast}
         last = row
-
-
-def test_range_table_equals_a_linear_scan_of_disjoint_entries():
-    """Binary search over the entries' edges gives the entry a P4 range table hits, -1 on a miss."""
-    rng = np.random.default_rng(5)
-    for _ in range(30):
-        # disjoint boxes: cut each axis into cells, keep a random subset of the cell pairs
-        xs = np.unique(np.concatenate(([0], rng.integers(1, 65535, 12), [65536])))
-        ys = np.unique(np.concatenate(([0], rng.integers(1, 1000, 6), [1001])))
-        boxes = [(xs[i], xs[i + 1] - 1 - rng.integers(0, 2), ys[j], ys[j + 1] - 1)
-                 for i in range(len(xs) - 1) for j in range(len(ys) - 1) if rng.random() < 0.7]
-        boxes = np.array([b for b in boxes if b[0] <= b[1]], np.int64)
-        table = RangeTable(boxes[:, [0, 2]], boxes[:, [1, 3]])
-        x, y = rng.integers(0, 65536, 3000), rng.integers(0, 1100, 3000)
-        got = table.lookup(x, y)
-        want = np.full(len(x), -1)
-        for r, (xl, xh, yl, yh) in enumerate(boxes):
-            want[(x >= xl) & (x <= xh) & (y >= yl) & (y <= yh)] = r
-        assert np.array_equal(got, want)
 
 
 def balance_entries(flow_rows, classes, hold=1, window=10):

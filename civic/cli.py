@@ -13,7 +13,7 @@ import sys
 from civic import __version__
 from civic.errors import CivicError
 
-COMMANDS = ("train", "crossval", "replay", "evaluate", "configure", "watch", "simulate", "diagnose")
+COMMANDS = ("train", "crossval", "replay", "evaluate", "configure", "watch", "monitor", "simulate", "diagnose")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,4 +1,5 @@
-"""A classic pcap read in chunks of whole records: bounded memory whatever the file's size.
+"""Classic pcaps in chunks: read in whole records (bounded memory whatever the file's size),
+written as frames arrive.
 
 `PcapChunks(path)` checks the file header (one-line errors, as `read_pcap`) and iterates
 `Chunk`s: the bytes of consecutive records (record headers included, so writing each chunk's
@@ -7,6 +8,7 @@ messages. A record cut off at the end of the file is the same one-line error as 
 """
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -14,11 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
-from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, frame_heads, frame_kinds, pcap_header,
-                        record_offsets, record_times)
+from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, LINKTYPE_ETHERNET, frame_heads, frame_kinds,
+                        pcap_header, record_offsets, record_times)
 
 CHUNK_BYTES = 4 << 20          # file bytes read per chunk (about 54 k plant-message records)
 RECORD_HEADER = 16
+SNAPLEN = 262144
 
 
 @dataclass
@@ -101,3 +104,28 @@ class PcapChunks:
                     return
                 pending = data[end:]
                 base += end
+
+
+class PcapWriter:
+    """A microsecond pcap written as frames arrive (the file header first)."""
+
+    def __init__(self, path: str | Path):
+        try:
+            self.fh = open(path, "wb")
+        except OSError as exc:
+            raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
+        self.fh.write(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, SNAPLEN, LINKTYPE_ETHERNET))
+
+    def write(self, times, frames, lengths=None) -> None:
+        """Append frames (bytes-likes) captured at times (s); lengths: their lengths on the wire."""
+        out = bytearray()
+        for k, (t, frame) in enumerate(zip(times, frames)):
+            us = round(float(t) * 1e6)
+            wire = len(frame) if lengths is None else int(lengths[k])
+            out += struct.pack("<IIII", us // 1_000_000, us % 1_000_000, len(frame), wire)
+            out += frame
+        self.fh.write(out)
+        self.fh.flush()
+
+    def close(self) -> None:
+        self.fh.close()

@@ -27,14 +27,14 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def table(watcher, now: float):
+def table(watcher, now: float, title: str = "civic watch"):
     from rich.table import Table
 
     from civic.watch import class_name
 
     st = watcher.state
     age = f"{now - st.last_digest:.1f} s ago" if st.last_digest else "none yet"
-    t = Table(title=f"civic watch {watcher.address}: {st.events_total} changes, last digest {age}",
+    t = Table(title=f"{title} {watcher.address}: {st.events_total} changes, last digest {age}",
               title_justify="left")
     for col in ("plant", "monitor", "class", "since", "normal", "warning", "error"):
         t.add_column(col, justify="right" if col in ("since", "normal", "warning", "error") else "left")

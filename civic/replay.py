@@ -54,8 +54,9 @@ def replay_stream(src: Path, dst: Path, switch: StreamingSwitch, entries: Entrie
                   names: list[str] = (), advance=lambda n: None) -> dict:
     """One recording through the streaming switch, chunk by chunk (bounded memory), into dst."""
     chunks = PcapChunks(src, entries.udp_port, entries.plant_prefix)
-    stats = {"frames": 0, "plant": 0, "evaluated": 0}
+    stats = {"frames": 0, "plant": 0}
     index = 0
+    chunk = None
     try:
         out = open(dst, "wb")
     except OSError as exc:
@@ -69,8 +70,6 @@ def replay_stream(src: Path, dst: Path, switch: StreamingSwitch, entries: Entrie
             out.write(chunk.records())
             stats["frames"] += len(chunk)
             stats["plant"] += int(np.count_nonzero(plant))
-            stats["evaluated"] += int(np.count_nonzero(chunk.heads["verdict"][plant]))
-            stats["t_end"] = max(stats.get("t_end", 0.0), float(chunk.times().max()))
             if events is not None and len(rows):
                 heads = chunk.heads
                 t = chunk.times(rows[:, 0])
@@ -78,6 +77,9 @@ def replay_stream(src: Path, dst: Path, switch: StreamingSwitch, entries: Entrie
                            enumerate(changes(rows, heads["src"], heads["seq"], index))]
             index += len(chunk)
             advance(chunk.end)
+    stats["evaluated"] = switch.given
+    if chunk is not None:                       # records are in capture order: the end is in the last chunk
+        stats["t_end"] = float(chunk.times().max())
     return stats
 
 

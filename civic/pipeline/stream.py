@@ -135,6 +135,7 @@ class StreamingSwitch:
         self.ringb = np.zeros((n, p, ring), np.int64)
         self.regs = np.zeros((n, p, len(REGS)), np.int64)
         self.counts = np.zeros((n, p, notify.CLASSES), np.int64)
+        self.given = 0                     # plant messages that got a verdict (any monitor)
 
     def process(self, buf: np.ndarray, offset: np.ndarray, plant: np.ndarray) -> np.ndarray:
         """Run a chunk of frames (uint8 `buf`, frame starts `offset`, `plant` the parser's mask)
@@ -144,9 +145,10 @@ class StreamingSwitch:
         found = []
         for a in range(0, n, CHUNK):
             b = min(a + CHUNK, n)
-            k = ingress(buf, offset[a:b], plant[a:b], self.rows, self.fields, self.cfg, self.pre, self.terms, self.edges,
+            k, given = ingress(buf, offset[a:b], plant[a:b], self.rows, self.fields, self.cfg, self.pre, self.terms, self.edges,
                         self.luts, self.results, self.meta, self.last_seq, self.last_cmd, self.ring, self.ringb,
                         self.regs, self.counts)
+            self.given += given
             rows = self.rows[:k].copy()
             rows[:, 0] += a
             found.append(rows)
@@ -301,8 +303,10 @@ def verdict(buf, o, v):
 def ingress(buf, offset, plant, changes, f, cfg, pre, terms, edges, luts, results, meta, last_seq, last_cmd, ring, ringb,
             regs, counts):
     """Every plant message of a chunk of frames through the switch, verdicts written into the
-    frames; rows of the verdict changes written to `changes`, their number returned."""
+    frames; rows of the verdict changes written to `changes`. Returns (rows written, plant
+    messages that got a verdict)."""
     k = 0
+    given = 0
     for i in range(len(offset)):
         if not plant[i]:
             continue
@@ -343,4 +347,5 @@ def ingress(buf, offset, plant, changes, f, cfg, pre, terms, edges, luts, result
                     regs[m, slot, LAST] = code
             v |= code << (2 * m)
         verdict(buf, o, v)
-    return k
+        given += v != 0
+    return k, given

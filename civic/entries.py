@@ -121,15 +121,32 @@ class Entries:
         Path(path).write_text(json.dumps(self.to_json(), indent=1) + "\n")
 
 
-def check_no_overlap(classes: np.ndarray, what: str) -> None:
-    """Entries of one table must not overlap: a packet matches at most one."""
-    for i in range(len(classes)):
-        a = classes[i]
-        rest = classes[i + 1:]
+def check_no_overlap(rows: np.ndarray, what: str) -> None:
+    """Entries of one table (columns lo0, hi0, lo1, hi1) must not overlap: a packet matches at
+    most one. How many entries cover each cell of the edge grid, by a 2-D difference array;
+    only when some cell has two are the pairs searched, to name them."""
+    if len(rows) < 2 or _max_cover(rows) <= 1:
+        return
+    for i in range(len(rows)):
+        a = rows[i]
+        rest = rows[i + 1:]
         hit = ((rest[:, 0] <= a[1]) & (a[0] <= rest[:, 1]) & (rest[:, 2] <= a[3]) & (a[2] <= rest[:, 3]))
         if np.any(hit):
             j = i + 1 + int(np.flatnonzero(hit)[0])
             raise CivicError(f"{what}: entries {i} and {j} overlap")
+
+
+def _max_cover(rows: np.ndarray) -> int:
+    """The most entries holding any one key pair."""
+    cells = []
+    for lo, hi in ((rows[:, 0], rows[:, 1]), (rows[:, 2], rows[:, 3])):
+        edges = np.unique(np.concatenate((lo, hi + 1)))
+        cells.append((np.searchsorted(edges, lo), np.searchsorted(edges, hi + 1), len(edges)))
+    (a0, b0, n0), (a1, b1, n1) = cells
+    d = np.zeros((n0 + 1, n1 + 1), np.int64)
+    for x, y, sign in ((a0, a1, 1), (b0, a1, -1), (a0, b1, -1), (b0, b1, 1)):
+        np.add.at(d, (x, y), sign)
+    return int(d.cumsum(0).cumsum(1).max())
 
 
 def parse_monitor_entries(raw, what: str) -> MonitorEntries:

@@ -17,8 +17,9 @@ def metric_names(expr: str) -> set[str]:
     return {n for n in names if n.lower() not in KEYWORDS}
 
 
-def exported_metric_names() -> set[str]:
-    """The sample names a WatchCollector serves (one plant, one digest), as Prometheus scrapes them."""
+def exported_metrics() -> dict[str, set[str]]:
+    """The sample names a WatchCollector serves (one plant, one digest), as Prometheus scrapes them, with
+    their label names (Prometheus adds job and instance, and any target labels)."""
     from prometheus_client import CollectorRegistry, generate_latest
 
     from civic.metrics import WatchCollector
@@ -30,5 +31,9 @@ def exported_metric_names() -> set[str]:
     state.last_digest = 1.0
     registry = CollectorRegistry()
     registry.register(WatchCollector(state))
-    text = generate_latest(registry).decode()
-    return {re.match(r"[\w:]+", ln).group(0) for ln in text.splitlines() if ln and not ln.startswith("#")}
+    out: dict[str, set[str]] = {}
+    for line in generate_latest(registry).decode().splitlines():
+        if line and not line.startswith("#"):
+            name, labels = re.match(r"([\w:]+)(\{[^}]*\})?", line).groups()
+            out.setdefault(name, set()).update(re.findall(r'(\w+)="', labels or ""))
+    return out

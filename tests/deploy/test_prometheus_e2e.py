@@ -1,9 +1,10 @@
 """A real Prometheus scrapes `civic watch` on BMv2 fed a recording: its query API returns the verdict counts
-and final classes the software model computes for the same frames, and the rules fire CivicPlantError for
-exactly the plants the model ends in error."""
+and final classes the software model computes for the same frames, the rules fire CivicPlantError for
+exactly the plants the model ends in error, and every Grafana dashboard query answers with data."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import signal
 import subprocess
@@ -27,6 +28,7 @@ pytestmark = [*BMV2, pytest.mark.skipif(shutil.which("prometheus") is None,
                                         reason="prometheus not on PATH (Debian: apt-get install prometheus)")]
 
 RULES = ROOT / "deploy" / "prometheus" / "civic-alerts.yml"
+DASHBOARD = ROOT / "deploy" / "grafana" / "civic.json"
 SETTLE_S = 30          # counters are read every second, scraped every second; rules evaluated every second
 
 
@@ -120,6 +122,10 @@ def test_prometheus_scraping_the_watch_sees_the_models_verdicts(switch, v1model_
         assert got["error alerts"] == want["error alerts"]
         assert query(prom_port, "civic_switch_up") == {(): 1.0}
         assert query(prom_port, "civic_events_total") == {(): float(changes)}
+        for panel in json.loads(DASHBOARD.read_text())["panels"]:    # every dashboard query has data
+            for target in panel["targets"]:
+                expr = re.sub(r"\$\w+", ".*", target["expr"].replace("$__rate_interval", "10s"))
+                assert query(prom_port, expr), (panel["title"], expr)
     finally:
         for p, stop in procs:
             p.send_signal(stop)

@@ -1,6 +1,8 @@
 """deploy/prometheus: the alerting rules are valid, pass their promtool unit tests, and query exported metrics."""
 from __future__ import annotations
 
+import re
+import shutil
 import subprocess
 
 import yaml
@@ -48,3 +50,15 @@ class TestPromtool:
     def test_the_unit_tests_of_the_rules_pass(self):
         res = promtool("test", "rules", RULE_TESTS.name)
         assert res.returncode == 0 and "SUCCESS" in res.stdout, res.stdout + res.stderr
+
+    def test_the_readmes_prometheus_configs_are_valid(self, tmp_path):
+        readme = (ROOT / "README.md").read_text()
+        section = readme[readme.index("## Operating CIVIC with Prometheus"):]
+        section = section[:section.index("\n## ", 1)]
+        configs = re.findall(r"```yaml\n(.*?)```", section, re.S)
+        assert len(configs) == 4                          # one switch, many, federation, remote write
+        shutil.copy(RULES, tmp_path)                      # as the README says: beside prometheus.yml
+        for k, text in enumerate(configs):
+            (tmp_path / f"prometheus{k}.yml").write_text(text)
+            res = promtool("check", "config", tmp_path / f"prometheus{k}.yml")
+            assert res.returncode == 0, text + res.stdout + res.stderr

@@ -1,6 +1,7 @@
 """A real Prometheus scrapes `civic watch` on BMv2 fed a recording: its query API returns the verdict counts
 and final classes the software model computes for the same frames, the rules fire CivicPlantError for
-exactly the plants the model ends in error, and every Grafana dashboard query answers with data."""
+exactly the plants the model ends in error, and every Grafana dashboard query answers with data. When the
+switch goes away, civic_switch_up drops to 0 and CivicSwitchDisconnected goes pending."""
 from __future__ import annotations
 
 import json
@@ -126,6 +127,16 @@ def test_prometheus_scraping_the_watch_sees_the_models_verdicts(switch, v1model_
             for target in panel["targets"]:
                 expr = re.sub(r"\$\w+", ".*", target["expr"].replace("$__rate_interval", "10s"))
                 assert query(prom_port, expr), (panel["title"], expr)
+
+        switch.proc.terminate()                     # the switch goes away: the watch says so, keeps the counts
+        switch.proc.wait(timeout=10)
+        disconnected = {(("alertname", "CivicSwitchDisconnected"), ("alertstate", "pending"), ("severity", "critical"))}
+        deadline = time.monotonic() + SETTLE_S
+        while set(query(prom_port, 'ALERTS{alertname="CivicSwitchDisconnected"}')) != disconnected:
+            assert time.monotonic() < deadline, query(prom_port, "civic_switch_up")
+            time.sleep(1)
+        assert query(prom_port, "civic_switch_up") == {(): 0.0}
+        assert query(prom_port, "civic_verdicts_total") == verdicts
     finally:
         for p, stop in procs:
             p.send_signal(stop)

@@ -4,6 +4,11 @@ civic_verdicts_total{plant,monitor,class}  verdicts, read from the switch's monK
 civic_class{plant,monitor}                 current class: 0 none yet, 1 normal, 2 warning, 3 error
 civic_events_total                         verdict changes received as digests
 civic_last_digest_age_seconds              seconds since the last digest (NaN before the first)
+civic_switch_up                            1 while the watch is connected to the switch (P4Runtime stream open,
+                                           CIVIC pipeline checked), 0 while it is not (lost, reconnecting)
+
+The verdict counters keep their last value while the switch is unreachable; a plant whose verdicts
+stopped is one whose civic_verdicts_total no longer increase (deploy/prometheus/civic-alerts.yml).
 """
 from __future__ import annotations
 
@@ -12,7 +17,8 @@ import time
 
 from civic.errors import CivicError
 
-METRICS = ("civic_verdicts_total", "civic_class", "civic_events_total", "civic_last_digest_age_seconds")
+METRICS = ("civic_verdicts_total", "civic_class", "civic_events_total", "civic_last_digest_age_seconds",
+           "civic_switch_up")
 CLASS_NAMES = {1: "normal", 2: "warning", 3: "error"}
 
 
@@ -41,6 +47,8 @@ class WatchCollector:
         last = self.state.last_digest
         yield GaugeMetricFamily("civic_last_digest_age_seconds", "Seconds since the last verdict-change digest",
                                 value=time.time() - last if last is not None else math.nan)
+        yield GaugeMetricFamily("civic_switch_up", "1 while the watch is connected to the switch, 0 while not",
+                                value=int(self.state.switch_up))
 
 
 def serve(state, port: int):

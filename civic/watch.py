@@ -40,6 +40,7 @@ class WatchState:
     cells: dict = field(default_factory=dict)        # (plant ip, monitor name) -> PlantMonitor
     events_total: int = 0
     last_digest: float | None = None
+    switch_up: bool = False                          # connected to the switch (metric civic_switch_up)
     events: list = field(default_factory=list)       # every event seen (for --plot)
 
     def cell(self, plant: str, monitor: str) -> PlantMonitor:
@@ -101,6 +102,7 @@ class Watcher:
         self._enabled_as_primary = False
         if self.plant_prefix is None:
             self.plant_prefix = self._read_plant_prefix()
+        self.state.switch_up = True
 
     def _read_plant_prefix(self) -> str:
         """The plant prefix the switch holds (its plant_prefix table), to name plants by address."""
@@ -115,6 +117,7 @@ class Watcher:
         return "10.0.0.0/24"
 
     def close(self) -> None:
+        self.state.switch_up = False
         if self.conn is not None:
             self.conn.close()
             self.conn = None

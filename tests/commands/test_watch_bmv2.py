@@ -121,6 +121,7 @@ def test_watch_reports_the_switchs_digests_counters_and_metrics(switch, v1model_
                 assert metrics.get(key, 0.0) == n, key
     assert metrics[("civic_events_total", ())] == len(want)
     assert metrics[("civic_last_digest_age_seconds", ())] >= 0
+    assert metrics[("civic_switch_up", ())] == 1
     last = {(e["plant"], e["monitor"]): e["to"] for e in want}
     for (plant, monitor), cls in last.items():
         key = ("civic_class", (("monitor", monitor), ("plant", plant)))

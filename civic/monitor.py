@@ -70,6 +70,7 @@ class Monitor:
         self.events_file, self.on_event = events_file, on_event
         self.writer = PcapWriter(write) if write else None
         self.sock = open_capture(iface)
+        self.state.switch_up = True            # civic_switch_up: the capture is running
         self.buf = np.zeros(BATCH * SNAP, np.uint8)
         self.views = [memoryview(self.buf)[i * SNAP:(i + 1) * SNAP] for i in range(BATCH)]
         self.offset = np.arange(BATCH, dtype=np.int64) * SNAP
@@ -151,5 +152,6 @@ class Monitor:
         self.update_counts()
         self.dropped += self.drops()
         self.sock.close()
+        self.state.switch_up = False
         if self.writer is not None:
             self.writer.close()

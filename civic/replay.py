@@ -61,22 +61,26 @@ def replay_stream(src: Path, dst: Path, switch: StreamingSwitch, entries: Entrie
         out = open(dst, "wb")
     except OSError as exc:
         raise CivicError(f"cannot write {dst}: {exc.strerror}") from exc
-    with out:
-        out.write(chunks.header)
-        advance(len(chunks.header))
-        for chunk in chunks:
-            plant = chunk.plant
-            rows = switch.process(chunk.buf, chunk.offset, plant)
-            out.write(chunk.records())
-            stats["frames"] += len(chunk)
-            stats["plant"] += int(np.count_nonzero(plant))
-            if events is not None and len(rows):
-                heads = chunk.heads
-                t = chunk.times(rows[:, 0])
-                events += [event(c, t[j], names) for j, c in
-                           enumerate(changes(rows, heads["src"], heads["seq"], index))]
-            index += len(chunk)
-            advance(chunk.end)
+    try:
+        with out:
+            out.write(chunks.header)
+            advance(len(chunks.header))
+            for chunk in chunks:
+                plant = chunk.plant
+                rows = switch.process(chunk.buf, chunk.offset, plant)
+                out.write(chunk.records())
+                stats["frames"] += len(chunk)
+                stats["plant"] += int(np.count_nonzero(plant))
+                if events is not None and len(rows):
+                    heads = chunk.heads
+                    t = chunk.times(rows[:, 0])
+                    events += [event(c, t[j], names) for j, c in
+                               enumerate(changes(rows, heads["src"], heads["seq"], index))]
+                index += len(chunk)
+                advance(chunk.end)
+    except CivicError:                   # a corrupt or truncated input: no partial output left behind
+        Path(dst).unlink(missing_ok=True)
+        raise
     stats["evaluated"] = switch.given
     if chunk is not None:                       # records are in capture order: the end is in the last chunk
         stats["t_end"] = float(chunk.times().max())

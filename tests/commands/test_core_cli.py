@@ -135,6 +135,7 @@ def test_bad_input_one_line_error(capsys, entries_path, tmp_path, case, expect):
     code, out, err = civic(capsys, *args)
     assert code == 2
     assert expect in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "o.pcap").exists()          # no partial output (replay streams its input)
 
 
 def test_evaluate_several_plants_in_one_capture(capsys, entries_path, tmp_path):

@@ -351,7 +351,7 @@ class BMv2Switch:
         """Install the entries; with reset, re-push the pipeline first (zeroes every register)."""
         if reset:
             self.conn.set_pipeline(self.schema.get_pipeline_config())
-        result = converge(self.conn, load_entries(entries_path), self.schema, self.schema)
+        result = converge(self.conn, load_entries(entries_path), self.schema, pipeline=self.schema)
         if self.schema.digests.get(DIGEST_VERDICT_CHANGE) is not None:
             enable_digest(self.conn, self.schema)
         return result

@@ -2,11 +2,12 @@
 
 finsy's client is asyncio; a `SwitchConnection` runs it on an event loop in a
 thread of its own, so `civic configure`, `civic watch` and the BMv2 target call
-it like a function. What CIVIC adds on top: arbitration as a one-shot check
-(not primary is a one-line error naming the election id), a connect timeout
-(an unreachable switch is one line after `timeout` s, not finsy's retries),
-per-update outcomes of a rejected Write (`WriteRejected`, for rollback), and
-full-width byte strings or the legacy device config wrapper for old PI builds.
+it like a function. finsy gives the channel, the stream and the error details;
+CIVIC adds arbitration as a one-shot check (not primary is a one-line error
+naming the election id), a connect timeout (an unreachable switch is one line
+after `timeout` s), its own deadlines, per-update outcomes of a rejected Write
+(`WriteRejected`, for rollback) and the legacy device config wrapper old PI
+builds want.
 """
 from __future__ import annotations
 
@@ -14,13 +15,15 @@ import asyncio
 import queue
 import threading
 
+import grpc
 from finsy import P4Client, P4ClientError
 from finsy.grpcutil import GRPCStatusCode
-from finsy.proto import p4r, rpc_code
+from finsy.proto import p4r, p4r_grpc, rpc_code
 
 from civic.errors import CivicError
 
 UNREACHABLE = (GRPCStatusCode.UNAVAILABLE, GRPCStatusCode.DEADLINE_EXCEEDED)
+RPC_TIMEOUT = 30.0     # s, for Read, Write and pipeline requests (the connect timeout is the caller's)
 
 
 class WriteRejected(Exception):
@@ -61,6 +64,7 @@ class SwitchConnection:
         self.timeout = timeout
         self.primary = False
         self._client: P4Client | None = None
+        self._stub: p4r_grpc.P4RuntimeStub | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._reader = None
@@ -73,28 +77,50 @@ class SwitchConnection:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def _serve(self) -> None:
+        """The session thread: run the event loop until close() stops it."""
+        self._loop.run_forever()
+        self._loop.close()
+
     def _run(self, coro):
         """Run a coroutine on the session's event loop and wait for its result."""
         return asyncio.run_coroutine_threadsafe(coro, self._loop).result()
 
-    def _complete(self, msg) -> None:
-        """finsy's request hook: every request carries our device and election ids."""
+    def _request(self, msg, timeout: float | None = None):
+        """One unary (or, for Read, server-streaming) RPC with our device and election ids.
+
+        It goes through the stub on finsy's channel, not `P4Client.request`, whose deadline is a
+        fixed 10 s: a Write of a full entries file can take longer on a slow server.
+        """
         if isinstance(msg, (p4r.WriteRequest, p4r.SetForwardingPipelineConfigRequest)):
             msg.election_id.high, msg.election_id.low = self.election_id >> 64, self.election_id & (2**64 - 1)
         if "device_id" in msg.DESCRIPTOR.fields_by_name:
             msg.device_id = self.device_id
+        rpc = getattr(self._stub, type(msg).__name__.removesuffix("Request"))
+        deadline = timeout or max(self.timeout, RPC_TIMEOUT)
+
+        async def call():
+            try:
+                if isinstance(msg, p4r.ReadRequest):
+                    return [e async for resp in rpc(msg, timeout=deadline) for e in resp.entities]
+                # the connect probe waits for the channel to come up; the rest fail fast
+                return await rpc(msg, timeout=deadline, wait_for_ready=isinstance(msg, p4r.CapabilitiesRequest))
+            except grpc.RpcError as exc:
+                raise P4ClientError(exc, type(msg).__name__, msg=msg) from None
+        return self._run(call())
 
     # -- session
     def connect(self) -> None:
         self._loop = asyncio.new_event_loop()
-        self._thread = threading.Thread(target=self._loop.run_forever, name="p4rt-loop", daemon=True)
+        self._thread = threading.Thread(target=self._serve, name="p4rt-loop", daemon=True)
         self._thread.start()
         self._client = P4Client(self.address)
-        self._run(self._client.open(complete_request=self._complete))
+        self._run(self._client.open())
+        self._stub = p4r_grpc.P4RuntimeStub(self._client.channel)
         try:   # any answer, even UNIMPLEMENTED, means a server is there
-            self._run(asyncio.wait_for(self._client.request(p4r.CapabilitiesRequest()), self.timeout))
-        except (TimeoutError, asyncio.TimeoutError, P4ClientError) as exc:
-            if not isinstance(exc, P4ClientError) or exc.code in UNREACHABLE:
+            self._request(p4r.CapabilitiesRequest(), timeout=self.timeout)
+        except P4ClientError as exc:
+            if exc.code in UNREACHABLE:
                 self.close()
                 raise CivicError(f"cannot reach switch {self.address} (no P4Runtime server answered "
                                  f"within {self.timeout:g} s)") from None
@@ -141,10 +167,9 @@ class SwitchConnection:
             self._reader = None
         if self._client is not None:
             self._run(self._client.close())
-            self._client = None
+            self._client = self._stub = None
         self._loop.call_soon_threadsafe(self._loop.stop)
-        self._thread.join(timeout=2)
-        self._loop.close()
+        self._thread.join()
         self._loop = self._thread = None
 
     # -- stream (digests, arbitration updates)
@@ -188,8 +213,7 @@ class SwitchConnection:
     def get_pipeline(self, response_type=p4r.GetForwardingPipelineConfigRequest.P4INFO_AND_COOKIE):
         """The installed pipeline config, None if there is none."""
         try:
-            return self._run(self._client.request(
-                p4r.GetForwardingPipelineConfigRequest(response_type=response_type))).config
+            return self._request(p4r.GetForwardingPipelineConfigRequest(response_type=response_type)).config
         except P4ClientError as exc:
             if exc.code == GRPCStatusCode.FAILED_PRECONDITION:
                 return None
@@ -202,24 +226,22 @@ class SwitchConnection:
         req = p4r.SetForwardingPipelineConfigRequest(
             action=p4r.SetForwardingPipelineConfigRequest.VERIFY_AND_COMMIT, config=config)
         try:
-            self._run(self._client.request(req))
+            self._request(req)
             return
         except P4ClientError as exc:
             if exc.code != GRPCStatusCode.INVALID_ARGUMENT or "P4DeviceConfig" not in exc.message:
                 raise self._error("SetForwardingPipelineConfig", exc) from None
         req.config.p4_device_config = legacy_device_config(config.p4_device_config)
         try:
-            self._run(self._client.request(req))
+            self._request(req)
         except P4ClientError as exc:
             raise self._error("SetForwardingPipelineConfig", exc) from None
 
     # -- read / write
     def read(self, entities: list) -> list:
-        async def collect():
-            return [e for resp in [r async for r in self._client.request_iter(req)] for e in resp.entities]
-        req = p4r.ReadRequest(entities=entities)
+        """The entities of one ReadRequest (all responses of the stream)."""
         try:
-            return self._run(collect())
+            return self._request(p4r.ReadRequest(entities=entities))
         except P4ClientError as exc:
             if exc.code == GRPCStatusCode.UNIMPLEMENTED:
                 raise Unsupported(f"switch {self.address} does not implement this Read: "
@@ -229,7 +251,7 @@ class SwitchConnection:
     def write(self, updates: list) -> None:
         """One WriteRequest; raises WriteRejected with the per-update outcome."""
         try:
-            self._run(self._client.request(p4r.WriteRequest(updates=updates)))
+            self._request(p4r.WriteRequest(updates=updates))
         except P4ClientError as exc:
             if exc.code in UNREACHABLE:
                 raise self._error("Write", exc) from None

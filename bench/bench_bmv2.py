@@ -33,7 +33,7 @@ def main() -> None:
         return
     from rich.console import Console
 
-    from civic.bmv2 import WINDOW, BMv2Switch, compile_v1model
+    from civic.switch.bmv2 import WINDOW, BMv2Switch, compile_v1model
     from civic.config import load_monitors
     from civic.entries import Entries
     from civic.pipeline import SwitchModel

@@ -90,7 +90,7 @@ def replay_stream(src: Path, dst: Path, switch: StreamingSwitch, entries: Entrie
 def replay_on_bmv2(captures: list[tuple[Capture, Path]], entries_path: str, pipeline: str,
                    events: list | None = None, names: list[str] = ()) -> tuple[int, int]:
     """All captures through one BMv2 switch (registers reset between captures); write the outputs."""
-    from civic.bmv2 import build_pipeline, replay_bmv2
+    from civic.switch.bmv2 import build_pipeline, replay_bmv2
 
     if build_pipeline(pipeline):
         print(f"compiled p4src/v1model/civic.p4 -> {pipeline}")

@@ -14,9 +14,14 @@ import json
 import time
 from dataclasses import dataclass, field
 
-from civic import p4runtime as p4rt
+from finsy import P4TableEntry
+
 from civic.errors import CivicError
 from civic.events import digest_changes, event
+from civic.switch.connection import SwitchConnection
+from civic.switch.counters import read_counter
+from civic.switch.digests import digest_members, enable_digest
+from civic.switch.schema import COUNTER_VERDICTS, DIGEST_VERDICT_CHANGE, TABLE_PLANT_PREFIX, SwitchSchema, mon
 from civic.wire import VERDICT_NAMES
 
 WATCH_ELECTION_ID = 1
@@ -72,27 +77,27 @@ class Watcher:
         self.on_event = on_event
         self.plant_prefix = plant_prefix
         self.state = WatchState(list(monitors or []))
-        self.conn: p4rt.SwitchConnection | None = None
-        self.schema: p4rt.P4Schema | None = None
+        self.conn: SwitchConnection | None = None
+        self.schema: SwitchSchema | None = None
         self._enabled_as_primary = False
         self._last_poll = 0.0
 
     # -- session
     def connect(self) -> None:
-        conn = p4rt.SwitchConnection(self.address, self.device_id, self.election_id, self.timeout)
+        conn = SwitchConnection(self.address, self.device_id, self.election_id, self.timeout)
         conn.connect()
         config = conn.get_pipeline()
         if config is None or not config.HasField("p4info"):
             conn.close()
             raise CivicError(f"switch {self.address} runs no pipeline (install one with civic configure --pipeline)")
-        schema = p4rt.P4Schema(config.p4info)
+        schema = SwitchSchema(config.p4info)
         try:
-            schema.digest(p4rt.DIGEST_VERDICT_CHANGE)
+            schema.digest(DIGEST_VERDICT_CHANGE)
             slots = schema.monitor_slots()
             for k in range(slots):
-                schema.counter(p4rt.mon(k, p4rt.COUNTER_VERDICTS))
+                schema.counter(mon(k, COUNTER_VERDICTS))
             if slots == 0:
-                raise CivicError(f"P4Info has no table '{p4rt.mon(0, 'config')}'")
+                raise CivicError(f"P4Info has no table '{mon(0, 'config')}'")
         except CivicError as exc:
             conn.close()
             raise CivicError(f"switch {self.address}: not a CIVIC pipeline with verdict digests: {exc}") from None
@@ -106,14 +111,11 @@ class Watcher:
 
     def _read_plant_prefix(self) -> str:
         """The plant prefix the switch holds (its plant_prefix table), to name plants by address."""
-        table = self.schema.table(p4rt.TABLE_PLANT_PREFIX)
-        ent = p4rt.p4runtime_pb2.Entity()
-        ent.table_entry.table_id = table.id
-        for e in self.conn.read([ent]):
-            for fm in e.table_entry.match:
-                if fm.WhichOneof("field_match_type") == "lpm":
-                    net = ipaddress.IPv4Address(p4rt.decode_value(fm.lpm.value))
-                    return f"{net}/{fm.lpm.prefix_len}"
+        for ent in self.conn.read([P4TableEntry(TABLE_PLANT_PREFIX).encode(self.schema)]):
+            entry = P4TableEntry.decode(ent, self.schema)
+            if entry.match:
+                net, prefix_len = entry.match["src_addr"]
+                return f"{ipaddress.IPv4Address(net)}/{prefix_len}"
         return "10.0.0.0/24"
 
     def close(self) -> None:
@@ -130,7 +132,7 @@ class Watcher:
     def ensure_digest(self) -> None:
         """As primary, (re-)enable the digest: a pipeline push by configure drops it."""
         if self.conn.primary and not self._enabled_as_primary:
-            p4rt.enable_digest(self.conn, self.schema)
+            enable_digest(self.conn, self.schema)
             self._enabled_as_primary = True
         elif not self.conn.primary:
             self._enabled_as_primary = False
@@ -148,7 +150,7 @@ class Watcher:
             elif msg.HasField("digest"):
                 now = time.time()
                 self.state.last_digest = now
-                for member in p4rt.digest_members(msg.digest, self.schema):
+                for member in digest_members(msg, self.schema):
                     for change in digest_changes(member, len(self.state.monitors)):
                         self._event(event(change, now, self.state.monitors), now)
                 self.conn.ack_digest(msg.digest)
@@ -166,7 +168,7 @@ class Watcher:
 
     def read_counters(self) -> None:
         for k, name in enumerate(self.state.monitors):
-            cells = p4rt.read_counter(self.conn, self.schema, p4rt.mon(k, p4rt.COUNTER_VERDICTS))
+            cells = read_counter(self.conn, self.schema, mon(k, COUNTER_VERDICTS))
             per_slot: dict = {}
             for index, packets in cells.items():
                 slot, cls = divmod(index, 4)

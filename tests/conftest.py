@@ -41,7 +41,7 @@ def v1model_build(tmp_path_factory):
     """p4src/v1model/civic.p4 compiled by p4c-bm2-ss (civic.json + P4Info), once per session."""
     import shutil
 
-    from civic.bmv2 import compile_v1model
+    from civic.switch.bmv2 import compile_v1model
     from data import ROOT
     if shutil.which("p4c-bm2-ss") is None:
         pytest.skip("p4c-bm2-ss not on PATH (install the P4 toolchain, see p4src/README.md)")

@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from civic import p4runtime as p4rt
+    from civic.switch.converge import configure
 
     address = _check_address(args.switch)
     if args.election_id < 0 or args.election_id >= 1 << 128:
@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         return _read(args, address, console)
     if not args.entries:
         raise CivicError("--entries is required (unless --read)")
-    result = p4rt.configure(address, args.entries, args.pipeline, args.device_id, args.election_id, args.timeout,
+    result = configure(address, args.entries, args.pipeline, args.device_id, args.election_id, args.timeout,
                             args.padded_bytes)
     table = Table(title=f"civic configure {address} (device {args.device_id})")
     for col in ("added", "modified", "deleted", "unchanged"):
@@ -75,25 +75,29 @@ def run(args: argparse.Namespace) -> int:
 def _read(args, address: str, console) -> int:
     from rich.table import Table
 
-    from civic import p4runtime as p4rt
     from civic.entries import load_entries
+    from civic.switch.connection import SwitchConnection, Unsupported
+    from civic.switch.converge import read_state
+    from civic.switch.pipeline import ensure_pipeline
+    from civic.switch.registers import monitor_config, plant_slot, read_plant_state
+    from civic.switch.schema import CONTROL
 
     prefix = load_entries(args.entries).plant_prefix if args.entries else None
-    slots = [p4rt.plant_slot(args.plant, prefix)] if args.plant else None
-    with p4rt.SwitchConnection(address, args.device_id, args.election_id, args.timeout, arbitrate=False) as conn:
-        schema, _ = p4rt.ensure_pipeline(conn, None)
-        entries, defaults = p4rt.read_state(conn, schema)
+    slots = [plant_slot(args.plant, prefix)] if args.plant else None
+    with SwitchConnection(address, args.device_id, args.election_id, args.timeout, arbitrate=False) as conn:
+        schema, _ = ensure_pipeline(conn, None)
+        entries, defaults = read_state(conn, schema)
         t = Table(title=f"entries on {address}")
         t.add_column("table")
         t.add_column("entry")
         for te in sorted(defaults + entries, key=lambda e: (e.table_id, not e.is_default_action, -e.priority)):
             name, _, rest = schema.describe(te).partition(" ")
-            t.add_row(name.removeprefix(p4rt.CONTROL + "."), rest)
+            t.add_row(name.removeprefix(CONTROL + "."), rest)
         console.print(t)
-        config = p4rt.monitor_config(schema, defaults)
+        config = monitor_config(schema, defaults)
         try:
-            states = p4rt.read_plant_state(conn, schema, config, slots)
-        except p4rt.Unsupported as exc:
+            states = read_plant_state(conn, schema, config, slots)
+        except Unsupported as exc:
             if slots:
                 raise CivicError(f"cannot read plant state: {exc} (BMv2: p4lang/PI#376; "
                                  "use simple_switch_CLI register_read)") from None

@@ -3,7 +3,7 @@
  *
  * docs/pipeline.md is the normative contract; every number here is taken
  * from it (or from docs/wire-format.md) and tests/p4/test_p4_source.py
- * checks the ones that civic/wire.py and civic/p4runtime.py also define.
+ * checks the ones that civic/wire.py and civic/switch/schema.py also define.
  */
 #ifndef _CIVIC_DEFINE_P4_
 #define _CIVIC_DEFINE_P4_

@@ -20,7 +20,7 @@
  * for plant messages (monitored port and plant prefix). Other frames leave
  * byte-identical and touch no register.
  *
- * P4Info names (the control-plane contract, civic/p4runtime.py):
+ * P4Info names (the control-plane contract, civic/switch/schema.py):
  *   CivicIngress.forward, .set_egress, .drop
  *   CivicIngress.monitored_port, .set_monitored
  *   CivicIngress.plant_prefix, .set_plant

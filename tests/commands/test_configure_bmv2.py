@@ -4,7 +4,7 @@ Pipeline push, install, a no-op re-run, a changed entries file (insert, modify,
 delete), a write the switch rejects (the previous entries stay), and the one-line
 errors for an unreachable switch and a pipeline that is not CIVIC's. The
 request-building details are unit-tested against a recording servicer in
-tests/test_p4runtime.py.
+tests/switch/.
 """
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ def one_line_error(res: subprocess.CompletedProcess, *words) -> None:
 @pytest.fixture
 def switch():
     """A bare BMv2 (no pipeline, nobody connected); `civic configure` is its controller."""
-    from civic.bmv2 import BMv2Switch
+    from civic.switch.bmv2 import BMv2Switch
     with BMv2Switch(None, controller=False) as sw:
         yield sw
 
@@ -134,16 +134,17 @@ def test_unreachable_and_foreign_pipeline_are_one_line_errors(switch, v1model_bu
                    "cannot reach switch 127.0.0.1:1")
     one_line_error(civic("configure", "--switch", switch.address, "--entries", e1), "no pipeline installed")
 
-    from civic.bmv2 import compile_v1model
+    from civic.switch.bmv2 import compile_v1model
     fwd = tmp_path / "fwd"
     compile_v1model(ROOT / "bench" / "p4" / "forward.p4", fwd)
     one_line_error(civic("configure", "--switch", switch.address, "--entries", e1, "--pipeline", fwd),
                    "P4Info has no table")
     # the switch runs another program: configure without --pipeline says it is not CIVIC's
-    from civic import p4runtime as p4rt
-    pipe = p4rt.load_pipeline(fwd)
-    with p4rt.SwitchConnection(switch.address) as conn:
-        conn.set_pipeline(pipe.p4info, pipe.device_config, pipe.cookie)
+    from civic.switch.connection import SwitchConnection
+    from civic.switch.pipeline import load_pipeline
+    pipe = load_pipeline(fwd)
+    with SwitchConnection(switch.address) as conn:
+        conn.set_pipeline(pipe.get_pipeline_config())
     one_line_error(civic("configure", "--switch", switch.address, "--entries", e1), "P4Info has no table")
     # a P4Info that does not belong to the BMv2 JSON: BMv2's PI takes the pair without a check,
     # the first Read of a CIVIC table then fails (one line, still)

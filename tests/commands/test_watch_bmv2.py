@@ -54,7 +54,7 @@ def without_t(events):
 
 @pytest.fixture
 def switch():
-    from civic.bmv2 import BMv2Switch
+    from civic.switch.bmv2 import BMv2Switch
     with BMv2Switch(None, controller=False) as sw:
         yield sw
 
@@ -140,11 +140,12 @@ def test_watch_a_switch_without_civics_pipeline_is_one_line(switch, tmp_path):
         assert words in res.stderr and "Traceback" not in res.stderr, res.stderr
 
     one_line(civic("watch", "--switch", switch.address, "--duration", "1"), "runs no pipeline")
-    from civic import p4runtime as p4rt
-    from civic.bmv2 import compile_v1model
+    from civic.switch.connection import SwitchConnection
+    from civic.switch.pipeline import load_pipeline
+    from civic.switch.bmv2 import compile_v1model
     compile_v1model(ROOT / "bench" / "p4" / "forward.p4", tmp_path / "fwd")
-    pipe = p4rt.load_pipeline(tmp_path / "fwd")
-    with p4rt.SwitchConnection(switch.address) as conn:
-        conn.set_pipeline(pipe.p4info, pipe.device_config, pipe.cookie)
+    pipe = load_pipeline(tmp_path / "fwd")
+    with SwitchConnection(switch.address) as conn:
+        conn.set_pipeline(pipe.get_pipeline_config())
     one_line(civic("watch", "--switch", switch.address, "--duration", "1"),
              "not a CIVIC pipeline with verdict digests")

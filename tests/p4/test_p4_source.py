@@ -13,9 +13,13 @@ from pathlib import Path
 
 import pytest
 
-from civic import p4runtime, wire
+from civic import wire
 from civic.config import PRECONDITION_FIELDS
 from civic.pipeline import data_collection
+from civic.switch.desired import DISABLED, SIGNAL_CODES
+from civic.switch.schema import (ACTION_SET_EGRESS, ACTION_SET_MONITORED, ACTION_SET_PLANT, FLOW_TABLES, MAX_PLANTS,
+                                 MONITOR_REGISTERS, REGISTER_LAST_SEQ, SLOPE_BIAS, TABLE_FORWARD, TABLE_MONITORED_PORT,
+                                 TABLE_PLANT_PREFIX, SwitchSchema, decode_value, mon)
 
 ROOT = Path(__file__).resolve().parents[2]
 P4SRC = ROOT / "p4src"
@@ -163,7 +167,7 @@ def test_no_duplicate_name_annotations(arch):
 
 
 def test_v1model_control_plane_names():
-    """The names of civic/p4runtime.py, as p4c will derive them (see p4src/README.md)."""
+    """The names of civic/switch/schema.py, as p4c will derive them (see p4src/README.md)."""
     src = source(V1 / "civic.p4")
     assert re.search(r"control\s+CivicIngress\s*\(", src)
     # register<T>(size), read(out T, in bit<32>) is the V1MODEL_VERSION 20180101 API
@@ -174,19 +178,19 @@ def test_v1model_control_plane_names():
     for k in range(MONITOR_SLOTS_V1):
         assert re.search(rf"\bMonitor\s*\(\s*\)\s+mon{k}\s*;", src), f"mon{k}"
     names = derived_names(src)
-    want = {p4runtime.TABLE_FORWARD: "table", p4runtime.TABLE_MONITORED_PORT: "table",
-            p4runtime.TABLE_PLANT_PREFIX: "table", p4runtime.ACTION_SET_EGRESS: "action",
-            p4runtime.ACTION_SET_MONITORED: "action", p4runtime.ACTION_SET_PLANT: "action",
-            p4runtime.REGISTER_LAST_SEQ: "register", "CivicIngress.drop": "action",
+    want = {TABLE_FORWARD: "table", TABLE_MONITORED_PORT: "table",
+            TABLE_PLANT_PREFIX: "table", ACTION_SET_EGRESS: "action",
+            ACTION_SET_MONITORED: "action", ACTION_SET_PLANT: "action",
+            REGISTER_LAST_SEQ: "register", "CivicIngress.drop": "action",
             "CivicIngress.last_p1": "register", "CivicIngress.last_v1": "register",
             "CivicIngress.last_v2": "register"}
     for k in range(MONITOR_SLOTS_V1):
-        for t in ("config", "precondition", "compensate", "classify") + p4runtime.FLOW_TABLES:
-            want[p4runtime.mon(k, t)] = "table"
+        for t in ("config", "precondition", "compensate", "classify") + FLOW_TABLES:
+            want[mon(k, t)] = "table"
         for a in ("set_config", "qualify", "disqualify", "set_offset", "set_class", "set_flow0", "set_flow1"):
-            want[p4runtime.mon(k, a)] = "action"
-        for r in p4runtime.MONITOR_REGISTERS:
-            want[p4runtime.mon(k, r)] = "register"
+            want[mon(k, a)] = "action"
+        for r in MONITOR_REGISTERS:
+            want[mon(k, r)] = "register"
     assert names == want
 
 
@@ -195,10 +199,10 @@ def test_derived_names_match_fixture_p4info():
     fixture = ROOT / "tests/fixtures/civic.p4info.txtpb"
     if not fixture.exists():
         pytest.skip("no P4Info fixture")
-    schema = p4runtime.P4Schema.from_text(fixture.read_text())
+    schema = SwitchSchema.from_text(fixture.read_text())
     names = derived_names(source(V1 / "civic.p4"))
     for kind, have in (("table", schema.tables), ("action", schema.actions), ("register", schema.registers)):
-        for n in have:
+        for n in (obj.name for obj in have):
             if n != "NoAction":
                 assert names.get(n) == kind, f"fixture {kind} {n} is not in the program"
 
@@ -229,7 +233,7 @@ def test_v1model_key_and_parameter_names():
         assert re.search(rf':\s*{kind}\s+@name\("{key}"\)', src), key
     params = [(int(w), n) for w, n in re.findall(r"bit<(\d+)>\s+(\w+)",
                                                  re.search(r"action\s+set_config\s*\(([^)]*)\)", src).group(1))]
-    assert [n for _, n in params] == list(p4runtime.DISABLED)
+    assert [n for _, n in params] == list(DISABLED)
     assert params[:9] == [(1, "enabled"), (2, "signal"), (8, "window"), (8, "ring_len"), (2, "estimator"),
                           (1, "balance"), (8, "hold_min"), (2, "aux_plus"), (2, "aux_minus")]
     assert all(w == 3 for w, _ in params[9:])            # operand codes l1..l4, p1, v1, v2, zero
@@ -259,12 +263,12 @@ def test_constants_match_python_and_docs():
     assert d["PLANT_PAYLOAD_LEN"] == wire.PAYLOAD_LEN
     assert d["UDP_LEN_PLANT"] == wire.UDP_LEN
     assert d["DEFAULT_UDP_PORT"] == wire.DEFAULT_UDP_PORT
-    assert d["MAX_PLANTS"] == p4runtime.MAX_PLANTS
-    assert d["SLOPE_BIAS"] == p4runtime.SLOPE_BIAS
+    assert d["MAX_PLANTS"] == MAX_PLANTS
+    assert d["SLOPE_BIAS"] == SLOPE_BIAS
     assert d["RUN_MAX"] == data_collection.RUN_MAX
     assert d["VERDICT_MONITORS"] == wire.MAX_MONITORS
     assert 2 * d["MAX_MONITORS"] <= 16 and d["MAX_MONITORS"] == MONITOR_SLOTS_V1
-    assert {s: d[f"SIGNAL_{s.upper()}"] for s in p4runtime.SIGNAL_CODES} == p4runtime.SIGNAL_CODES
+    assert {s: d[f"SIGNAL_{s.upper()}"] for s in SIGNAL_CODES} == SIGNAL_CODES
     assert {n: d[f"CLASS_{n.upper()}"] for n in wire.CLASS_CODES} == wire.CLASS_CODES
     assert d["CLASS_NOT_EVALUATED"] == 0 and d["CLASS_DEFAULT"] == wire.CLASS_CODES["error"]
     assert d["RING_CELLS"] == d["MAX_PLANTS"] * d["MAX_WINDOW"]
@@ -276,19 +280,19 @@ def test_constants_match_python_and_docs():
 
 
 def test_table_sizes_match_fixture_p4info():
-    """The P4Info fixture of tests/test_p4runtime.py uses the sizes the program declares."""
+    """The P4Info fixture of tests/switch/ uses the sizes the program declares."""
     fixture = ROOT / "tests/fixtures/civic.p4info.txtpb"
     if not fixture.exists():
         pytest.skip("no P4Info fixture")
-    schema = p4runtime.P4Schema.from_text(fixture.read_text())
+    schema = SwitchSchema.from_text(fixture.read_text())
     d = defines()
-    want = {p4runtime.TABLE_FORWARD: d["FORWARD_TABLE_SIZE"],
-            p4runtime.TABLE_MONITORED_PORT: d["MONITORED_PORT_TABLE_SIZE"],
-            p4runtime.TABLE_PLANT_PREFIX: d["PLANT_PREFIX_TABLE_SIZE"]}
+    want = {TABLE_FORWARD: d["FORWARD_TABLE_SIZE"],
+            TABLE_MONITORED_PORT: d["MONITORED_PORT_TABLE_SIZE"],
+            TABLE_PLANT_PREFIX: d["PLANT_PREFIX_TABLE_SIZE"]}
     for k in range(schema.monitor_slots()):
-        want[p4runtime.mon(k, "precondition")] = d["PRECONDITION_TABLE_SIZE"]
-        want[p4runtime.mon(k, "classify")] = d["CLASSIFY_TABLE_SIZE"]
-        want[p4runtime.mon(k, "config")] = 1
+        want[mon(k, "precondition")] = d["PRECONDITION_TABLE_SIZE"]
+        want[mon(k, "classify")] = d["CLASSIFY_TABLE_SIZE"]
+        want[mon(k, "config")] = 1
     for name, size in want.items():
         assert schema.table(name).size == size, name
     assert schema.monitor_slots() == MONITOR_SLOTS_V1
@@ -478,9 +482,9 @@ def test_tna_slope_key_arithmetic_matches_the_model(window, lsq, offset_steps):
 
 def test_tna_names():
     src = source(TNA / "civic.p4")
-    for full in (p4runtime.TABLE_FORWARD, p4runtime.TABLE_MONITORED_PORT, p4runtime.TABLE_PLANT_PREFIX,
-                 p4runtime.ACTION_SET_EGRESS, p4runtime.ACTION_SET_MONITORED, p4runtime.ACTION_SET_PLANT,
-                 p4runtime.REGISTER_LAST_SEQ, "CivicIngress.drop"):
+    for full in (TABLE_FORWARD, TABLE_MONITORED_PORT, TABLE_PLANT_PREFIX,
+                 ACTION_SET_EGRESS, ACTION_SET_MONITORED, ACTION_SET_PLANT,
+                 REGISTER_LAST_SEQ, "CivicIngress.drop"):
         assert f'@name(".{full}")' in src, full
     for k in range(tna_config()["TNA_MONITORS"]):
         assert re.search(rf"\bMonitor\s*\([^;]*\)\s+mon{k}\s*;", src), k
@@ -565,27 +569,27 @@ def test_fixture_p4info_tables_match_the_program():
     """Keys (name, match kind, width), action refs and their @defaultonly scope, and initial default
     actions of the fixture are what p4c derives from the v1model program; aliases are unique and
     ids carry the P4Runtime type prefix (p4info/p4ids.h: action 0x01, table 0x02, register 0x16)."""
-    from civic.p4runtime import p4info_pb2
+    from finsy.proto import p4i as p4info_pb2
 
-    schema = p4runtime.P4Schema.from_text((ROOT / "tests/fixtures/civic.p4info.txtpb").read_text())
+    schema = SwitchSchema.from_text((ROOT / "tests/fixtures/civic.p4info.txtpb").read_text())
     info = schema.p4info
     tables = derived_tables(source(V1 / "civic.p4"))
-    assert set(tables) == set(schema.tables)
+    assert set(tables) == {t.name for t in schema.tables}
     for t in info.tables:
         want = tables[t.preamble.name]
         assert [(f.name, p4info_pb2.MatchField.MatchType.Name(f.match_type), f.bitwidth)
                 for f in t.match_fields] == want["keys"], t.preamble.name
         assert [f.id for f in t.match_fields] == list(range(1, len(t.match_fields) + 1))
-        refs = [(schema.action_by_id[r.id].name, r.scope == p4info_pb2.ActionRef.DEFAULT_ONLY) for r in t.action_refs]
+        refs = [(schema.actions[r.id].name, r.scope == p4info_pb2.ActionRef.DEFAULT_ONLY) for r in t.action_refs]
         assert refs == want["actions"], t.preamble.name
         for r in t.action_refs:
             assert (r.scope == p4info_pb2.ActionRef.DEFAULT_ONLY) == ("@defaultonly" in r.annotations)
         assert not t.const_default_action_id, t.preamble.name
         init = t.initial_default_action
-        assert schema.action_by_id[init.action_id].name == want["default"], t.preamble.name
-        assert [p4runtime.decode_value(a.value) for a in init.arguments] == want["args"], t.preamble.name
+        assert schema.actions[init.action_id].name == want["default"], t.preamble.name
+        assert [decode_value(a.value) for a in init.arguments] == want["args"], t.preamble.name
     used = {a for t in tables.values() for a, _ in t["actions"]}
-    assert set(schema.actions) == used, "P4Info lists exactly the actions some table references"
+    assert {a.name for a in schema.actions} == used, "P4Info lists exactly the actions some table references"
     objs = [(0x02, t.preamble) for t in info.tables] + [(0x01, a.preamble) for a in info.actions] + \
         [(0x16, r.preamble) for r in info.registers]
     for prefix, pre in objs:
@@ -596,11 +600,11 @@ def test_fixture_p4info_tables_match_the_program():
     assert len({pre.id for _, pre in objs}) == len(objs)
 
 
-def p4info_summary(schema: p4runtime.P4Schema) -> dict:
+def p4info_summary(schema: SwitchSchema) -> dict:
     """Everything of a P4Info that civic configure and the fixture depend on, ids left out."""
-    from civic.p4runtime import p4info_pb2
+    from finsy.proto import p4i as p4info_pb2
 
-    aname = {a.id: a.name for a in schema.actions.values()}
+    aname = {a.id: a.name for a in schema.actions}
     out = {}
     for t in schema.p4info.tables:
         out[("table", t.preamble.name)] = (
@@ -625,8 +629,8 @@ def test_built_p4info_matches_fixture(request):
         built = Path(os.environ["CIVIC_P4INFO"])
     else:
         built = request.getfixturevalue("v1model_build") / "civic.p4info.txtpb"
-    have = p4info_summary(p4runtime.P4Schema.from_text(built.read_text(), str(built)))
-    want = p4info_summary(p4runtime.P4Schema.from_text((ROOT / "tests/fixtures/civic.p4info.txtpb").read_text()))
+    have = p4info_summary(SwitchSchema.from_text(built.read_text(), str(built)))
+    want = p4info_summary(SwitchSchema.from_text((ROOT / "tests/fixtures/civic.p4info.txtpb").read_text()))
     assert sorted(have) == sorted(want)
     for k in want:
         assert have[k] == want[k], k

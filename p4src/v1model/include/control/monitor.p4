@@ -7,7 +7,7 @@
  * CivicIngress.monK.<object> (the inliner prefixes an inlined instance's
  * objects with the instance name, ComputeNewNames in
  * frontends/p4/inlining.cpp, and HierarchicalNames prefixes the top-level
- * control's name) -- the names civic/p4runtime.py looks up:
+ * control's name) -- the names civic/switch/schema.py looks up:
  *
  *   table  config        keyless; default action set_config(enabled,
  *                        signal, window, ring_len, lsq, aux_plus,

@@ -5,10 +5,10 @@ with p4c-bm2-ss, runs simple_switch_grpc and checks every output frame is
 byte-identical to the software model. It is skipped unless both tools are on
 PATH and we are root.
 
-The plumbing tests run `civic.bmv2` against a *stand-in process* (a small
+The plumbing tests run `civic.switch.bmv2` against a *stand-in process* (a small
 Python script installed as `simple_switch_grpc` on a temporary PATH; it is not
 a switch and computes no verdicts): it serves the P4Runtime servicer fixture
-of test_p4runtime.py on the address it is given and copies frames from port 1
+of tests/switch/p4rt_servicer.py on the address it is given and copies frames from port 1
 to port 2, flipping one byte and dropping broadcast frames. That checks the
 namespace, the control link, the packet sockets, lockstep ordering, reporting
 of frames that were not forwarded, and clean-up, without BMv2.
@@ -30,8 +30,8 @@ from civic.errors import CivicError
 
 pytestmark = pytest.mark.bmv2
 
-ROOT = Path(__file__).resolve().parent.parent
-TESTS = Path(__file__).resolve().parent
+ROOT = Path(__file__).resolve().parents[2]
+TESTS = Path(__file__).resolve().parents[1]
 FIXTURE_P4INFO = TESTS / "fixtures" / "civic.p4info.txtpb"
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
 HAVE_IP = shutil.which("ip") is not None
@@ -52,14 +52,14 @@ def host_links() -> set:
 
 
 def entries_json(tmp_path) -> Path:
-    from test_p4runtime import entries_file
+    from switch.p4rt_servicer import entries_file
     return entries_file(tmp_path)
 
 
 # ---------------------------------------------------------------- stand-in process
 STAND_IN = textwrap.dedent('''\
     #!{python}
-    # Stand-in for simple_switch_grpc in tests/test_bmv2.py: NOT a switch.
+    # Stand-in for simple_switch_grpc in tests/switch/test_bmv2.py: NOT a switch.
     import os, socket, sys, threading, time
     from concurrent import futures
     sys.path.insert(0, {tests!r})
@@ -70,8 +70,8 @@ STAND_IN = textwrap.dedent('''\
     if os.environ.get("STAND_IN_FAIL"):
         print("Error: stand-in refuses to start (test)", flush=True); sys.exit(3)
     import grpc
-    from civic.p4runtime import p4runtime_pb2_grpc
-    from test_p4runtime import P4RuntimeFixture
+    from finsy.proto import p4r_grpc as p4runtime_pb2_grpc
+    from switch.p4rt_servicer import P4RuntimeFixture
     ports = dict(a.split("@") for a in [sys.argv[i + 1] for i, x in enumerate(sys.argv) if x == "-i"])
     addr = sys.argv[sys.argv.index("--grpc-server-addr") + 1]
     fx = P4RuntimeFixture(None)
@@ -117,7 +117,7 @@ def stand_in(tmp_path, monkeypatch):
 @pytest.fixture
 def made(monkeypatch):
     """The BMv2Switch objects started during the test (to check their namespace is gone)."""
-    from civic.bmv2 import BMv2Switch
+    from civic.switch.bmv2 import BMv2Switch
     started = []
     orig = BMv2Switch.start
 
@@ -151,7 +151,7 @@ def alive(pid: int) -> bool:
 def test_plumbing_order_missing_and_cleanup(stand_in, tmp_path, made):
     from frames import plant
 
-    from civic.bmv2 import replay_bmv2
+    from civic.switch.bmv2 import replay_bmv2
     from civic.wire import read_pcap, write_pcap
 
     build, pidfile = stand_in
@@ -191,7 +191,7 @@ def test_plumbing_order_missing_and_cleanup(stand_in, tmp_path, made):
 
 @needs_netns
 def test_stand_in_that_dies_is_reported_and_cleaned_up(stand_in, tmp_path, monkeypatch, made):
-    from civic.bmv2 import replay_bmv2
+    from civic.switch.bmv2 import replay_bmv2
     build, _ = stand_in
     monkeypatch.setenv("STAND_IN_FAIL", "1")
     with pytest.raises(CivicError, match=r"simple_switch_grpc exited with status 3: Error: stand-in refuses"):
@@ -200,7 +200,7 @@ def test_stand_in_that_dies_is_reported_and_cleaned_up(stand_in, tmp_path, monke
 
 
 def test_missing_switch_binary_is_one_line_error(tmp_path, monkeypatch):
-    from civic.bmv2 import replay_bmv2
+    from civic.switch.bmv2 import replay_bmv2
     build = tmp_path / "build"
     build.mkdir()
     (build / "civic.json").write_text("{}")
@@ -296,7 +296,7 @@ def test_sigterm_during_replay_still_cleans_up(stand_in, tmp_path):
     script.write_text(textwrap.dedent(f"""\
         import sys
         sys.path.insert(0, {str(ROOT)!r})
-        from civic.bmv2 import BMv2Switch
+        from civic.switch.bmv2 import BMv2Switch
         with BMv2Switch({str(build)!r}, startup_timeout=15) as sw:
             print(sw.netns, sw.host_if, flush=True)
             sys.stdin.readline()          # wait to be killed
@@ -314,7 +314,7 @@ def test_sigterm_during_replay_still_cleans_up(stand_in, tmp_path):
 
 @pytest.mark.skipif(shutil.which("p4c-bm2-ss") is None, reason="p4c-bm2-ss not on PATH")
 def test_pipeline_is_built_when_missing_or_older_than_the_source(tmp_path):
-    from civic.bmv2 import build_pipeline
+    from civic.switch.bmv2 import build_pipeline
     src = tmp_path / "p4src"
     shutil.copytree(ROOT / "p4src", src)
     build = tmp_path / "build"

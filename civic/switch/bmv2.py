@@ -48,9 +48,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
-from civic import p4runtime as p4rt
 from civic.entries import load_entries
 from civic.errors import CivicError
+from civic.switch.connection import SwitchConnection
+from civic.switch.converge import ConvergeResult, converge
+from civic.switch.desired import desired_state
+from civic.switch.digests import digest_members, enable_digest
+from civic.switch.pipeline import PIPELINE_JSON, PIPELINE_P4INFO, load_pipeline
+from civic.switch.schema import DIGEST_VERDICT_CHANGE
 from civic.wire import Capture, decode_frames, read_pcap, write_pcap
 
 SWITCH_BINARY = "simple_switch_grpc"
@@ -192,7 +197,7 @@ class BMv2Switch:
         self.tmp = Path(tempfile.mkdtemp(prefix=f"civic-bmv2-{tag}-"))
         self.log_path = Path(log_path) if log_path else self.tmp / "switch.log"
         self.proc: subprocess.Popen | None = None
-        self.conn: p4rt.SwitchConnection | None = None
+        self.conn: SwitchConnection | None = None
         self.tx = self.rx = None
         self._log = None
         self._netns_made = False
@@ -228,7 +233,7 @@ class BMv2Switch:
             raise CivicError("'ip' (iproute2) not found on PATH: needed for the switch's network namespace")
         if os.geteuid() != 0:
             raise CivicError("the BMv2 target needs root (it creates a network namespace and veth pairs)")
-        pipe = p4rt.load_pipeline(self.pipeline_dir) if self.controller else None
+        pipe = load_pipeline(self.pipeline_dir) if self.controller else None
         ns, ip = self.netns, ["ip"]
         _run(ip + ["netns", "add", ns], "creating namespace")
         self._netns_made = True
@@ -274,16 +279,15 @@ class BMv2Switch:
             self.conn.close()
             self.conn = None
             return
-        self.pipeline = pipe
-        self.conn.set_pipeline(pipe.p4info, pipe.device_config, pipe.cookie)
-        self.schema = p4rt.P4Schema(pipe.p4info)
+        self.schema = pipe
+        self.conn.set_pipeline(pipe.get_pipeline_config())
 
-    def _connect(self) -> p4rt.SwitchConnection:
+    def _connect(self) -> SwitchConnection:
         deadline = time.monotonic() + self.startup_timeout
         while True:
             if self.proc.poll() is not None:
                 raise CivicError(f"{self.binary} exited with status {self.proc.returncode}: {self._log_tail()}")
-            conn = p4rt.SwitchConnection(self.address, self.device_id, election_id=1, timeout=1.0,
+            conn = SwitchConnection(self.address, self.device_id, election_id=1, timeout=1.0,
                                          padded_bytes=self.padded_bytes, arbitrate=self.controller)
             try:
                 conn.connect()
@@ -343,13 +347,13 @@ class BMv2Switch:
         shutil.rmtree(self.tmp, ignore_errors=True)   # the log lives here unless log_path was given
 
     # -- use
-    def configure(self, entries_path: str | Path, reset: bool = False) -> p4rt.ConvergeResult:
+    def configure(self, entries_path: str | Path, reset: bool = False) -> ConvergeResult:
         """Install the entries; with reset, re-push the pipeline first (zeroes every register)."""
         if reset:
-            self.conn.set_pipeline(self.pipeline.p4info, self.pipeline.device_config, self.pipeline.cookie)
-        result = p4rt.converge(self.conn, load_entries(entries_path), self.schema, self.pipeline)
-        if p4rt.DIGEST_VERDICT_CHANGE in self.schema.digests:
-            p4rt.enable_digest(self.conn, self.schema)
+            self.conn.set_pipeline(self.schema.get_pipeline_config())
+        result = converge(self.conn, load_entries(entries_path), self.schema, pipeline=self.schema)
+        if self.schema.digests.get(DIGEST_VERDICT_CHANGE) is not None:
+            enable_digest(self.conn, self.schema)
         return result
 
     def collect_digests(self, quiet: float = 0.5) -> list[dict]:
@@ -358,7 +362,7 @@ class BMv2Switch:
         out = []
         while (msg := self.conn.next_stream_message(quiet)) is not None:
             if msg.HasField("digest"):
-                out.extend(p4rt.digest_members(msg.digest, self.schema))
+                out.extend(digest_members(msg, self.schema))
                 self.conn.ack_digest(msg.digest)
         return out
 
@@ -434,8 +438,8 @@ def compile_v1model(program: str | Path, pipeline_dir: str | Path) -> str:
     """p4c-bm2-ss: program -> pipeline_dir/civic.json + its P4Info; returns the compiler's messages."""
     d = Path(pipeline_dir)
     d.mkdir(parents=True, exist_ok=True)
-    res = _run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(d / p4rt.PIPELINE_JSON),
-                "--p4runtime-files", str(d / p4rt.PIPELINE_P4INFO[0]), str(program)], "compiling the P4 program")
+    res = _run(["p4c-bm2-ss", "--std", "p4-16", "--arch", "v1model", "-o", str(d / PIPELINE_JSON),
+                "--p4runtime-files", str(d / PIPELINE_P4INFO[0]), str(program)], "compiling the P4 program")
     return res.stdout + res.stderr
 
 
@@ -449,9 +453,9 @@ def build_pipeline(pipeline_dir: str | Path, source: Path = P4_SOURCE) -> bool:
     main = source / "v1model" / "civic.p4"
     if not main.is_file() or shutil.which("p4c-bm2-ss") is None:
         return False
-    js = d / p4rt.PIPELINE_JSON
+    js = d / PIPELINE_JSON
     newest = max(f.stat().st_mtime for sub in ("v1model", "shared") for f in (source / sub).rglob("*.p4"))
-    if js.is_file() and (d / p4rt.PIPELINE_P4INFO[0]).is_file() and js.stat().st_mtime >= newest:
+    if js.is_file() and (d / PIPELINE_P4INFO[0]).is_file() and js.stat().st_mtime >= newest:
         return False
     compile_v1model(main, d)
     return True
@@ -510,7 +514,7 @@ def replay_bmv2(captures: Sequence[Capture], entries_path: str | Path, pipeline_
     in all cases. Raises CivicError on any failure (one line).
     """
     entries = load_entries(entries_path)
-    p4rt.desired_state(entries, p4rt.P4Schema(p4rt.load_pipeline(pipeline_dir).p4info))  # fail fast
+    desired_state(entries, load_pipeline(pipeline_dir))  # fail fast
     results = []
     with BMv2Switch(pipeline_dir, binary=binary, startup_timeout=startup_timeout, log_path=log_path,
                     padded_bytes=padded_bytes) as sw:

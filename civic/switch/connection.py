@@ -68,6 +68,7 @@ class SwitchConnection:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._reader = None
+        self._closing = False
         self._responses: queue.Queue = queue.Queue()
 
     def __enter__(self) -> "SwitchConnection":
@@ -81,6 +82,12 @@ class SwitchConnection:
         """The session thread: run the event loop until close() stops it."""
         self._loop.run_forever()
         self._loop.close()
+
+    def _loop_error(self, loop, context) -> None:
+        """While the session closes, gRPC's poller may still fire on a descriptor it has just
+        closed ("Bad file descriptor"): not an error of ours, not for the user's terminal."""
+        if not self._closing:
+            loop.default_exception_handler(context)
 
     def _run(self, coro):
         """Run a coroutine on the session's event loop and wait for its result."""
@@ -112,6 +119,8 @@ class SwitchConnection:
     # -- session
     def connect(self) -> None:
         self._loop = asyncio.new_event_loop()
+        self._loop.set_exception_handler(self._loop_error)
+        self._closing = False
         self._thread = threading.Thread(target=self._serve, name="p4rt-loop", daemon=True)
         self._thread.start()
         self._client = P4Client(self.address)
@@ -162,6 +171,7 @@ class SwitchConnection:
     def close(self) -> None:
         if self._loop is None:
             return
+        self._closing = True
         if self._reader is not None:
             self._reader.cancel()
             self._reader = None

@@ -10,6 +10,9 @@ Run: python bench/bench_diagnose.py  (or `python -m bench`). Prints one line per
 
 Cascaded Tanks transfer (fit on one half of the estimation record, score on the other):
     python bench/bench_diagnose.py --transfer
+and which structure transfers (fixed candidate sets, fitted jointly without elimination;
+~15 min on one core):
+    python bench/bench_diagnose.py --structures ["NAME;NAME..."]
 
 Robustness sweep (not part of `python -m bench`, ~5 min on 2 cores):
     python bench/bench_diagnose.py --robustness 1,2,3,4,5,6,7,8 [CASE,CASE...]
@@ -305,9 +308,142 @@ def transfer(n_init: int = 50) -> dict:
     return out
 
 
+# ---------------------------------------------------------------------------------------
+# Cascaded Tanks: which structure transfers? Fixed candidate sets, no elimination
+# ---------------------------------------------------------------------------------------
+def _structure_variants(model):
+    """Named edits of the free-run candidate list (the catalogue's most general candidate per
+    family and component, as `diagnose` fits them jointly before backward elimination)."""
+    from civic.diagnose.mechanisms import FlowLaw, Overflow
+
+    def drop(*labels):
+        return lambda c: [m for m in c if m.label not in labels]
+
+    def rebound(cond, edit):
+        def sel(c):
+            out = []
+            for m in c:
+                if cond(m):
+                    params, bounds, fixed = edit(dict(m.params), dict(m.bounds), dict(m.fixed))
+                    m = type(m)(m.component, params, bounds, fixed)
+                out.append(m)
+            return out
+        return sel
+
+    def wide_sensor(p, b, f):
+        span = 4 * b["offset"][1]
+        b.update(offset=(-0.6 * span, 0.6 * span), gain=(0.02, 5.0))
+        return p, b, f
+
+    def linear_form(links, keep_exponent=False):
+        def sel(c):
+            out = []
+            for m in c:
+                if m.name == "flow_law" and m.component in links:
+                    lk = model.find("link", m.component)
+                    if keep_exponent:
+                        out.append(m)
+                    m = FlowLaw(lk.name, {"linear": 0.02 * lk.coeff}, {"linear": (0.0, 2.0 * lk.coeff)},
+                                {"form": "linear"})
+                out.append(m)
+            return out
+        return sel
+
+    def t1_rim_x2(p, b, f):
+        lo, hi = b["volume"]
+        b["volume"] = (lo, 2.0 * hi)
+        return p, b, f
+
+    def t2_rim_free(c):
+        return [Overflow("T2", {"volume": 1.05 * float(m.fixed["volume"])},
+                         {"volume": (float(m.fixed["volume"]), 1.5 * float(m.fixed["volume"]))}, {"to": m.fixed["to"]})
+                if m.name == "overflow" and m.component == "T2" and not m.params else m for m in c]
+
+    return {
+        "all general candidates (no elimination)": lambda c: c,
+        "without pump_head": drop("pump_head(P1)"),
+        "without pump_dead_zone": drop("pump_dead_zone(P1)"),
+        "without pump_head, pump_dead_zone": drop("pump_head(P1)", "pump_dead_zone(P1)"),
+        "without sensor_characteristic": drop("sensor_characteristic(y_V)"),
+        "without flow_law out1": drop("flow_law(out1, exponent)"),
+        "without flow_law out2": drop("flow_law(out2, exponent)"),
+        "without both flow laws": lambda c: [m for m in c if m.name != "flow_law"],
+        "sensor map, wide bounds": rebound(lambda m: m.name == "sensor_characteristic", wide_sensor),
+        "flow laws as added linear term": linear_form({"out1", "out2"}),
+        "out2: exponent + linear term": linear_form({"out2"}, keep_exponent=True),
+        "T1 split rim bound x2": rebound(lambda m: m.name == "overflow" and "fraction" in m.params, t1_rim_x2),
+        "T2 rim free above the clip": t2_rim_free,
+    }
+
+
+def transfer_structures(names=None, n_init: int = 50) -> dict:
+    """Each structure variant fitted jointly (multi-start as `diagnose`, no backward elimination)
+    on each half of the Cascaded Tanks estimation record and scored on the other half, and
+    fitted on the whole record (estimation RMSE). The validation record is not used."""
+    import numpy as np
+
+    from civic.diagnose import data
+    from civic.diagnose import fit as F
+    from civic.diagnose.locate import localise, noise_sigma
+    from civic.diagnose.mechanisms import CATALOGUE, Coefficient
+    from civic.diagnose.report import simulation_rmse
+    from civic.plant.model import PlantModel
+    from civic.plant.simulate import Recording
+
+    data_path, model_path, _ = CASCADED
+    model = PlantModel.from_toml(model_path)
+    rec = data.load(data_path, model)
+    n = len(rec.t)
+
+    def part(sl, name):
+        t = np.asarray(rec.t)[sl]
+        return Recording(t - t[0], {k: np.asarray(v)[sl] for k, v in rec.signals.items()}, None, name)
+
+    recs = {"first": part(slice(0, n // 2), "first"), "second": part(slice(n // 2, n), "second"), "whole": rec}
+
+    def joint_fit(r, select):
+        # as diagnose() up to the candidates, then _backward's joint multi-start fit, refitted on all rows
+        engine = F.make_engine(model, r, n_init=n_init)
+        prob = F.Problem(model, r, engine, F.Calibration.of(model, bounds=F.FREE_RUN_CAL), np.ones(len(engine.columns)))
+        prob.sigma = np.array([max(noise_sigma(engine.Y[:, j]), 1e-3 * (np.ptp(engine.Y[:, j]) or 1.0))
+                               for j in range(engine.Y.shape[1])])
+        every = np.ones_like(engine.train)
+        base = prob.fit([], rows=every)
+        loc = localise(model, r, engine, prob.residuals(base.model, base.x0_extra) * prob.sigma, prob.sigma)
+        cands = F._general([c for fam in CATALOGUE if fam is not Coefficient for c in fam.candidates(model, loc)])
+        mechs = sorted(select(cands), key=lambda c: bool(F._starts(c)) and c.name == "overflow")
+        singles = [prob.fit([m], rows=every, start_cal=base.cal, start_x0=base.x0_extra, starts=F._starts(m))
+                   for m in mechs]
+        fits = [prob.fit(mechs, rows=every, start_cal=base.cal, start_x0=base.x0_extra,
+                         starts=F._starts(mechs[-1]) if mechs else None)]
+        if singles:
+            k = int(np.argmin([s.train_sse for s in singles]))
+            warm = [singles[k].mechanisms[0] if j == k else m for j, m in enumerate(mechs)]
+            fits.append(prob.fit(warm, rows=every, start_cal=singles[k].cal, start_x0=singles[k].x0_extra))
+        best = min(fits, key=lambda f: f.train_sse)
+        return F._refit_all(prob, best.mechanisms, best).model
+
+    variants = _structure_variants(model)
+    out = {}
+    for name in names or variants:
+        row = {}
+        for a, b in (("first", "second"), ("second", "first")):
+            m = joint_fit(recs[a], variants[name])
+            row[f"{a}->{b}"] = simulation_rmse(m, recs[b], n_init, n_init)[0]["y_V"]
+        row["mean_transfer"] = float(np.mean([row["first->second"], row["second->first"]]))
+        row["estimation"] = simulation_rmse(joint_fit(rec, variants[name]), rec, n_init, n_init)[0]["y_V"]
+        out[name] = row
+        print(f"{name:42s} transfer {row['first->second']:.3f} / {row['second->first']:.3f} (mean "
+              f"{row['mean_transfer']:.3f}); whole estimation record {row['estimation']:.3f} V", flush=True)
+    return out
+
+
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--transfer":
         transfer()
+        sys.exit(0)
+    if len(sys.argv) > 1 and sys.argv[1] == "--structures":
+        transfer_structures(sys.argv[2].split(";") if len(sys.argv) > 2 else None)
         sys.exit(0)
     if len(sys.argv) > 2 and sys.argv[1] == "--robustness":
         sys.exit(robustness([int(s) for s in sys.argv[2].split(",")], sys.argv[3].split(",") if len(sys.argv) > 3 else None))

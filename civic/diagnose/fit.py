@@ -169,7 +169,9 @@ class Problem:
 
     def build(self, mechs: list[Mechanism], thetas: list, cal_f) -> PlantModel:
         m = self.cal.apply(self.model, cal_f)
-        for mech, th in zip(mechs, thetas):
+        pairs = list(zip(mechs, thetas))
+        # a mechanism that reads another's result (a spill at the fitted sensor's clip) edits last
+        for mech, th in [x for x in pairs if not x[0].late] + [x for x in pairs if x[0].late]:
             mech.edit(m, mech.values(th))
         return m
 

@@ -52,6 +52,12 @@ def test_cascaded_tanks_round_trip(tmp_path, capsys):
     assert all(w > abl["heldout_rmse"] for w in without) and without == sorted(without, reverse=True)
     assert [r["finding"].split("(")[0] for r in abl["without"]] == [f["mechanism"] for f in rep["findings"]]
     assert rep["fit"]["integrator"]["max_deviation_sigma"] < 1.0
+    # the lower tank spills where its sensor clips, under the sensor map fitted with it
+    from civic.plant.model import PlantModel
+    imp = PlantModel.from_toml(improved)
+    if ("overflow", "T2") in names:
+        s, t2 = imp.find("sensor", "y_V"), imp.tank("T2")
+        assert abs(float(s.read(t2.overflow.volume / t2.area)) - s.max) < 1e-6
     capsys.readouterr()
     rc = main(["simulate", "--model", str(improved), "--inputs", str(DATA), "--init-samples", "50"])
     line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("y_V")][0]

@@ -42,3 +42,28 @@ def test_pump_dead_zone_and_sensor_characteristic():
     t = np.arange(3) * m.dt
     y = simulate(sc, t, {"u_V": np.zeros(3)}, {"T1": 0.0, "T2": 4.0})["y_V"][0]
     assert abs(y - (0.7 * 4.0 ** 1.3 + 0.5)) < 1e-12
+
+
+def test_spill_at_the_clip_follows_a_fitted_sensor_map():
+    """A measured tank whose sensor sits at its clip spills where that sensor clips, also when
+    a sensor map fitted with it moves that level (the rim is read after the map's edit,
+    whatever the order of the candidates)."""
+    from civic.diagnose.fit import Calibration, Problem
+    from civic.diagnose.mechanisms.overflow import AtClip
+
+    m = PlantModel.from_toml(MODEL)
+    spill = AtClip("T2", {}, {}, {"volume": 10.0, "to": "outside", "sensor": "y_V", "reading": 10.0}, model=m)
+    sensor = SensorCharacteristic("y_V", {"exponent": 1.6, "offset": 1.8, "gain": 0.5},
+                                  {"exponent": (0.5, 2.0), "offset": (-2.0, 2.0), "gain": (0.2, 3.0)},
+                                  {"base": 0.0, "base_gain": 1.0})
+    prob = Problem.__new__(Problem)          # only the model edits (no engine needed)
+    prob.model, prob.cal = m, Calibration.of(m)
+    built = prob.build([spill, sensor], [spill.x0, sensor.x0], np.ones(len(prob.cal)))
+    s = built.find("sensor", "y_V")
+    rim = built.tank("T2").overflow.volume
+    assert abs(float(s.read(rim / built.tank("T2").area)) - 10.0) < 1e-9
+    assert abs(rim - 10.0) > 0.5                # the nominal map's 10 L would no longer be the clip
+    # under the nominal map the rim is the clip volume of the nominal sensor
+    alone = prob.build([spill], [spill.x0], np.ones(len(prob.cal)))
+    assert abs(alone.tank("T2").overflow.volume - 10.0) < 1e-9
+    assert spill.n_params == 1 and "reading" not in spill.values() and spill.label == "overflow(T2->outside)"

@@ -26,6 +26,7 @@ class Mechanism:
     fixed: dict = field(default_factory=dict)        # name -> value (not optimised, reported)
     name = "mechanism"
     counted = True      # fixed numbers set from the data count in the BIC; False: they are references
+    late = False        # edits after the others (it reads what they set, e.g. a fitted sensor map)
     hidden = ()         # fixed entries for the edit only (not in values() nor the report)
 
     # ---- parameter vector ---------------------------------------------------------------

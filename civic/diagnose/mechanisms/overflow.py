@@ -36,16 +36,20 @@ class Overflow(Mechanism):
         for s in model.sensors:
             v = loc.sensor_plateaus.get(s.name)
             if v is not None and s.max is not None and v >= s.max - 1.5 * max(s.resolution, 1e-9) and s.gain:
-                q = s.invert(v)
-                clipped.setdefault(s.tank, q * model.tank(s.tank).area if s.quantity == "level" else q)
+                clipped.setdefault(s.tank, (_volume_at(model, s, v), s.name, float(v)))
         for tk in model.tanks:
             if tk.name in loc.plateaus:
                 # measured tank sitting at a level it never exceeds: the rim is that level
                 vol = loc.plateaus[tk.name]
                 if vol < tk.rim_volume() - 0.02 * max(vol, 1e-9):
+                    # a plateau at the sensor's clip: the rim follows a sensor map fitted with it
+                    at_clip = tk.name in clipped and abs(clipped[tk.name][0] - vol) <= 0.02 * max(vol, 1e-9)
                     for d in dests:
                         if d != tk.name:
-                            out.append(cls(tk.name, {}, {}, {"volume": round(vol, 4), "to": d}))
+                            out.append(AtClip(tk.name, {}, {}, {"volume": round(vol, 4), "to": d,
+                                                                 "sensor": clipped[tk.name][1],
+                                                                 "reading": clipped[tk.name][2]}, model=model)
+                                       if at_clip else cls(tk.name, {}, {}, {"volume": round(vol, 4), "to": d}))
                     if model.total_volume is not None:
                         # part of the spill leaves the circuit (splashes past the tank below):
                         # only the inventory can tell the share, so only with a stated total
@@ -56,12 +60,14 @@ class Overflow(Mechanism):
                                                {"to": d, "rest": OUTSIDE}))
             elif tk.name in clipped:
                 # its sensor sits at the clip value the model already has: is the tank spilling
-                # there too (level held at the rim) rather than rising on unseen?
-                vol = clipped[tk.name]
+                # there too (level held at the rim) rather than rising on unseen? The rim is
+                # where the sensor clips, also under a sensor map fitted with it (`AtClip`)
+                vol, sensor, reading = clipped[tk.name]
                 if vol < tk.rim_volume() - 0.02 * max(vol, 1e-9):
                     for d in dests:
                         if d != tk.name:
-                            out.append(cls(tk.name, {}, {}, {"volume": round(vol, 4), "to": d}))
+                            out.append(AtClip(tk.name, {}, {}, {"volume": round(vol, 4), "to": d,
+                                                                 "sensor": sensor, "reading": reading}, model=model))
             elif tk.name in loc.unmeasured and tk.name in loc.tanks:
                 # unmeasured tank: the rim is a free parameter
                 hi = min(tk.rim_volume(), loc.max_volume.get(tk.name, tk.rim_volume()))
@@ -83,6 +89,44 @@ class Overflow(Mechanism):
             return (f"{self.component} spills above {p['volume']:.4g} L: {100 * p['fraction']:.0f} % into "
                     f"{p['to']}, the rest to {p['rest']}")
         return f"{self.component} spills above {p['volume']:.4g} L into {p['to']}"
+
+
+def _volume_at(model, s, reading: float) -> float:
+    """The tank volume at which sensor `s` gives `reading` (e.g. its clip value)."""
+    q = float(s.invert(reading))
+    return q * model.tank(s.tank).area if s.quantity == "level" else q
+
+
+class AtClip(Overflow):
+    """A measured tank that spills where its sensor clips: the rim is the volume at which the
+    sensor gives its clip reading, read from the model being edited (`late`: after a sensor map fitted
+    jointly has moved that volume). With the rim fixed at the nominal map's clip instead, a
+    refitted map put the clip far below the rim on half of the Cascaded Tanks record (the
+    tank stored water above the sensor's range and drained too late after an overflow).
+    `volume` is reported at the nominal map; the model file carries the fitted one."""
+
+    late = True
+    hidden = ("reading", "at_nominal")   # the clip reading (from the data), its volume under the nominal map
+
+    def __init__(self, component, params=None, bounds=None, fixed=None, model=None):
+        super().__init__(component, params or {}, bounds or {}, dict(fixed or {}))
+        if model is not None and "at_nominal" not in self.fixed:
+            self.fixed["at_nominal"] = _volume_at(model, model.find("sensor", self.fixed["sensor"]),
+                                                  self.fixed["reading"])
+
+    @property
+    def n_params(self) -> int:
+        return 1            # the rim, as for a fixed-rim overflow
+
+    def edit(self, model, p):
+        # the data's rim moved as the clip volume moves from the nominal map to the model's
+        tk = model.tank(self.component)
+        s = model.find("sensor", self.fixed["sensor"])
+        nominal = max(float(self.fixed["at_nominal"]), 1e-12)
+        tk.overflow = OverflowSpec(to=p["to"], volume=float(p["volume"]) * _volume_at(model, s, self.fixed["reading"]) / nominal)
+
+    def describe(self, p):
+        return f"{self.component} spills where {p['sensor']} clips (nominal map: {p['volume']:.4g} L) into {p['to']}"
 
 
 SPILL_HEADROOM = 0.05   # the instant overflow moves this fraction of the rim volume up

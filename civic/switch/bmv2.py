@@ -431,7 +431,7 @@ class BMv2Switch:
             self.rx.recv(RECV_MAX)
 
 
-P4_SOURCE = Path(__file__).resolve().parents[1] / "p4src"
+P4_SOURCE = Path(__file__).resolve().parents[2] / "p4src"      # the checkout's P4 sources
 
 
 def compile_v1model(program: str | Path, pipeline_dir: str | Path) -> str:

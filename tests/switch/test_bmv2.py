@@ -314,7 +314,8 @@ def test_sigterm_during_replay_still_cleans_up(stand_in, tmp_path):
 
 @pytest.mark.skipif(shutil.which("p4c-bm2-ss") is None, reason="p4c-bm2-ss not on PATH")
 def test_pipeline_is_built_when_missing_or_older_than_the_source(tmp_path):
-    from civic.switch.bmv2 import build_pipeline
+    from civic.switch.bmv2 import P4_SOURCE, build_pipeline
+    assert P4_SOURCE == ROOT / "p4src"                         # the default: the checkout's sources
     src = tmp_path / "p4src"
     shutil.copytree(ROOT / "p4src", src)
     build = tmp_path / "build"

@@ -9,8 +9,6 @@ so `civic watch`'s table, events, metrics and plot serve it unchanged.
 """
 from __future__ import annotations
 
-import ipaddress
-import json
 import select
 import socket
 import time
@@ -22,8 +20,8 @@ from civic.errors import CivicError
 from civic.events import event
 from civic.pcap_chunks import PcapWriter
 from civic.pipeline.stream import StreamingSwitch, changes
-from civic.watch import WatchState
-from civic.wire import frame_heads, frame_kinds
+from civic.watch import WatchState, publish
+from civic.wire import frame_heads, frame_kinds, plant_address
 
 ETH_P_ALL = 0x0003
 SOL_PACKET, PACKET_STATISTICS, PACKET_IGNORE_OUTGOING = 263, 6, 23
@@ -76,8 +74,6 @@ class Monitor:
         self.offset = np.arange(BATCH, dtype=np.int64) * SNAP
         self.frames = self.plant_messages = self.dropped = 0
         self._counts_at = 0.0
-        net = ipaddress.IPv4Network(entries.plant_prefix, strict=False)
-        self._net = int(net.network_address) & ~0xFF
 
     def poll(self, wait: float) -> None:
         """Process what arrives within `wait` s, batch by batch."""
@@ -124,23 +120,14 @@ class Monitor:
             now = time.time()
             self.state.last_digest = now          # a verdict change: what a digest would say
             for c in changes(rows, heads["src"], heads["seq"]):
-                self._event(event(c, times[c.index], self.names), now)
-
-    def _event(self, ev: dict, now: float) -> None:
-        self.state.apply_event(ev, now)
-        if self.events_file is not None:
-            self.events_file.write(json.dumps(ev) + "\n")
-            self.events_file.flush()
-        if self.on_event is not None:
-            self.on_event(ev)
+                publish(self.state, event(c, times[c.index], self.names), now, self.events_file, self.on_event)
 
     def update_counts(self) -> None:
         """The verdict counters of every plant seen, into the state."""
         counts = self.switch.counts
         for m, name in enumerate(self.names):
             for slot in np.flatnonzero(counts[m].sum(axis=1)):
-                plant = str(ipaddress.IPv4Address(self._net | int(slot)))
-                self.state.apply_counts(plant, name, {k: int(counts[m, slot, k]) for k in (1, 2, 3)})
+                self.state.apply_counts(plant_address(self.entries.plant_prefix, slot), name, {k: int(counts[m, slot, k]) for k in (1, 2, 3)})
         self._counts_at = time.monotonic()
 
     def drops(self) -> int:

@@ -16,12 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
-from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, LINKTYPE_ETHERNET, frame_heads, frame_kinds,
-                        pcap_header, record_offsets, record_times)
+from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, PCAP_HEADER, frame_heads, frame_kinds, pcap_header,
+                        record_offsets, record_times)
 
 CHUNK_BYTES = 1 << 20          # file bytes read per chunk (13 k plant-message records: fits the caches)
 RECORD_HEADER = 16
-SNAPLEN = 262144
 
 
 @dataclass
@@ -116,7 +115,7 @@ class PcapWriter:
             self.fh = open(path, "wb")
         except OSError as exc:
             raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
-        self.fh.write(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, SNAPLEN, LINKTYPE_ETHERNET))
+        self.fh.write(PCAP_HEADER)
 
     def write(self, times, frames, lengths=None) -> None:
         """Append frames (bytes-likes) captured at times (s); lengths: their lengths on the wire."""

@@ -22,7 +22,7 @@ from civic.switch.connection import SwitchConnection
 from civic.switch.counters import read_counter
 from civic.switch.digests import digest_members, enable_digest
 from civic.switch.schema import COUNTER_VERDICTS, DIGEST_VERDICT_CHANGE, TABLE_PLANT_PREFIX, SwitchSchema, mon
-from civic.wire import VERDICT_NAMES
+from civic.wire import VERDICT_NAMES, plant_address
 
 WATCH_ELECTION_ID = 1
 COUNTER_POLL_S = 1.0
@@ -124,10 +124,6 @@ class Watcher:
             self.conn.close()
             self.conn = None
 
-    def plant_ip(self, slot: int) -> str:
-        net = ipaddress.IPv4Network(self.plant_prefix, strict=False)
-        return str(ipaddress.IPv4Address((int(net.network_address) & ~0xFF) | slot))
-
     # -- work
     def ensure_digest(self) -> None:
         """As primary, (re-)enable the digest: a pipeline push by configure drops it."""
@@ -152,19 +148,12 @@ class Watcher:
                 self.state.last_digest = now
                 for member in digest_members(msg, self.schema):
                     for change in digest_changes(member, len(self.state.monitors)):
-                        self._event(event(change, now, self.state.monitors), now)
+                        publish(self.state, event(change, now, self.state.monitors), now, self.events_file,
+                                self.on_event)
                 self.conn.ack_digest(msg.digest)
         if time.monotonic() - self._last_poll >= COUNTER_POLL_S:
             self.read_counters()
             self._last_poll = time.monotonic()
-
-    def _event(self, ev: dict, now: float) -> None:
-        self.state.apply_event(ev, now)
-        if self.events_file is not None:
-            self.events_file.write(json.dumps(ev) + "\n")
-            self.events_file.flush()
-        if self.on_event is not None:
-            self.on_event(ev)
 
     def read_counters(self) -> None:
         for k, name in enumerate(self.state.monitors):
@@ -175,7 +164,17 @@ class Watcher:
                 if cls and packets:
                     per_slot.setdefault(slot, {1: 0, 2: 0, 3: 0})[cls] = packets
             for slot, counts in per_slot.items():
-                self.state.apply_counts(self.plant_ip(slot), name, counts)
+                self.state.apply_counts(plant_address(self.plant_prefix, slot), name, counts)
+
+
+def publish(state: WatchState, ev: dict, now: float, events_file=None, on_event=None) -> None:
+    """A verdict-change event into the state, as a line of the --events file, and to on_event."""
+    state.apply_event(ev, now)
+    if events_file is not None:
+        events_file.write(json.dumps(ev) + "\n")
+        events_file.flush()
+    if on_event is not None:
+        on_event(ev)
 
 
 def class_name(code: int) -> str:

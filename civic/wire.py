@@ -47,6 +47,7 @@ PCAP_MAGICS = {  # magic as read little-endian -> (byte order, fraction per seco
 }
 PCAPNG_MAGIC = 0x0A0D0D0A
 LINKTYPE_ETHERNET = 1
+PCAP_HEADER = struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 262144, LINKTYPE_ETHERNET)   # what civic writes
 
 MESSAGE_DTYPE = np.dtype([
     ("t", "f8"),          # capture time, seconds since the epoch
@@ -70,6 +71,12 @@ def ip_to_int(text: str) -> int:
 
 def int_to_ip(value: int) -> str:
     return str(ipaddress.IPv4Address(int(value)))
+
+
+def plant_address(plant_prefix: str, slot: int) -> str:
+    """The plant in a state slot: the prefix's /24 with the slot as last octet."""
+    net = ipaddress.IPv4Network(plant_prefix, strict=False)
+    return int_to_ip((int(net.network_address) & ~0xFF) | int(slot))
 
 
 def parse_prefix(text: str) -> tuple[int, int]:
@@ -139,15 +146,22 @@ def incremental_checksum(csum, old, new):
     return np.where(csum == 0, 0, out).astype(np.uint16)
 
 
+def even_step(positions: np.ndarray) -> int:
+    """The distance between evenly spaced positions (equal-sized records back to back, the
+    usual capture), 0 when there are fewer than two or they are not evenly spaced."""
+    n = len(positions)
+    if n < 2:
+        return 0
+    step = int(positions[1] - positions[0])
+    return step if step > 0 and bool(np.all(np.diff(positions) == step)) else 0
+
+
 def _u32_at(arr: np.ndarray, positions: np.ndarray, order: str) -> np.ndarray:
     """The 32-bit unsigned integers at byte positions, in the file's byte order (a strided view
-    where the positions are evenly spaced, the usual capture)."""
-    n = len(positions)
-    if n > 1:
-        step = int(positions[1] - positions[0])
-        if step >= 4 and int(positions[-1]) == int(positions[0]) + step * (n - 1) and \
-                np.all(np.diff(positions) == step):
-            return np.ndarray((n,), order + "u4", arr, int(positions[0]), (step,)).astype(np.uint32)
+    where the positions are evenly spaced)."""
+    step = even_step(positions)
+    if step >= 4:
+        return np.ndarray((len(positions),), order + "u4", arr, int(positions[0]), (step,)).astype(np.uint32)
     return np.ascontiguousarray(arr[positions[:, None] + np.arange(4)]).view(order + "u4").ravel()
 
 
@@ -226,9 +240,9 @@ HEAD_DTYPE = np.dtype({
 def frame_heads(buf: np.ndarray, offset: np.ndarray, caplen: np.ndarray) -> np.ndarray:
     """Every frame's first FRAME_LEN bytes viewed as HEAD_DTYPE; bytes past caplen read zeros."""
     n = len(offset)
-    step = int(offset[1] - offset[0]) if n > 1 else 0
     complete = bool(np.all(caplen >= FRAME_LEN))
-    if n > 1 and complete and step >= FRAME_LEN and np.all(np.diff(offset) == step):
+    step = even_step(offset) if complete else 0
+    if step >= FRAME_LEN:
         # equal-sized records back to back (the usual capture): a zero-copy strided view
         return np.ndarray(shape=(n,), dtype=HEAD_DTYPE, buffer=buf, offset=int(offset[0]), strides=(step,))
     idx = np.minimum(offset[:, None] + np.arange(FRAME_LEN), len(buf) - 1)
@@ -361,7 +375,7 @@ def write_pcap(path: str | Path, t: np.ndarray, frames) -> None:
     t = np.asarray(t, dtype=np.float64)
     us = np.round(t * 1e6).astype(np.int64)
     sec, frac = us // 1_000_000, us % 1_000_000
-    header = struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 262144, LINKTYPE_ETHERNET)
+    header = PCAP_HEADER
     if isinstance(frames, np.ndarray):
         n, k = frames.shape
         rec = np.zeros((n, 16 + k), dtype=np.uint8)

@@ -4,7 +4,6 @@ from __future__ import annotations
 import sys
 import time
 
-from civic.errors import CivicError
 
 
 def register(sub) -> None:
@@ -24,63 +23,19 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from civic.commands.watch import table
+    from civic.commands.watch import check_session, follow, open_events, plot, printer
     from civic.entries import load_entries
     from civic.monitor import Monitor
 
-    if args.duration is not None and args.duration <= 0:
-        raise CivicError("--duration must be > 0")
-    if args.metrics_port is not None and not 0 < args.metrics_port < 65536:
-        raise CivicError("--metrics-port must be 1..65535")
+    check_session(args)
     entries = load_entries(args.entries)
-    try:
-        events_file = open(args.events, "a") if args.events else None
-    except OSError as exc:
-        raise CivicError(f"cannot open {args.events}: {exc.strerror}") from None
-    live = sys.stdout.isatty()
-    on_event = None if live else (lambda ev: print(f"{ev['plant']} {ev['monitor']}: {ev['from'] or '-'} -> "
-                                                   f"{ev['to']} (seq {ev['seq']})", flush=True))
-    monitor = Monitor(args.iface, entries, events_file, args.write, on_event)   # bad iface: one line, exit 2
-    stop_metrics = None
+    events_file = open_events(args.events)
+    monitor = Monitor(args.iface, entries, events_file, args.write, printer())   # bad iface: one line, exit 2
     start = time.monotonic()
-    end = None if args.duration is None else start + args.duration
-    try:
-        if args.metrics_port is not None:
-            from civic.metrics import serve
-            stop_metrics = serve(monitor.state, args.metrics_port)
-        print(f"monitoring {args.iface} ({', '.join(monitor.names)})"
-              + (f", metrics on :{args.metrics_port}" if args.metrics_port else ""), file=sys.stderr, flush=True)
-        if live:
-            from rich.live import Live
-
-            from civic.report import console
-            with Live(table(monitor, time.time(), "civic monitor"), console=console, refresh_per_second=4) as view:
-                loop(monitor, end, lambda: view.update(table(monitor, time.time(), "civic monitor")))
-        else:
-            loop(monitor, end, None)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        monitor.close()
-        if stop_metrics is not None:
-            stop_metrics()
-        if events_file is not None:
-            events_file.close()
+    follow(monitor, args, events_file, f"monitoring {args.iface}", "civic monitor", monitor.poll)
     st = monitor.state
-    took = time.monotonic() - start
-    print(f"stopped: {monitor.frames} frames ({monitor.plant_messages} plant messages) in {took:.1f} s, "
-          f"{monitor.dropped} dropped by the kernel; {st.events_total} verdict changes from "
-          f"{len({p for p, _ in st.cells})} plants", file=sys.stderr)
-    if args.plot:
-        from civic.timeline import plot_timeline
-        plot_timeline(st.events, args.plot, end_t=time.time())
+    print(f"stopped: {monitor.frames} frames ({monitor.plant_messages} plant messages) in "
+          f"{time.monotonic() - start:.1f} s, {monitor.dropped} dropped by the kernel; {st.events_total} verdict "
+          f"changes from {len({p for p, _ in st.cells})} plants", file=sys.stderr)
+    plot(args, st)
     return 0
-
-
-def loop(monitor, end, redraw) -> None:
-    """Poll until `end` (or forever)."""
-    while end is None or time.monotonic() < end:
-        wait = 0.25 if end is None else max(0.0, min(0.25, end - time.monotonic()))
-        monitor.poll(wait)
-        if redraw is not None:
-            redraw()

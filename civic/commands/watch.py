@@ -52,70 +52,98 @@ def table(watcher, now: float, title: str = "civic watch"):
 def run(args) -> int:
     from civic.watch import Watcher
 
-    if args.duration is not None and args.duration <= 0:
-        raise CivicError("--duration must be > 0")
-    if args.metrics_port is not None and not 0 < args.metrics_port < 65536:
-        raise CivicError("--metrics-port must be 1..65535")
+    check_session(args)
     names, prefix = None, None
     if args.entries:
         from civic.entries import load_entries
         entries = load_entries(args.entries)
         names, prefix = [m.name for m in entries.monitors], entries.plant_prefix
-    try:
-        events_file = open(args.events, "a") if args.events else None
-    except OSError as exc:
-        raise CivicError(f"cannot open {args.events}: {exc.strerror}") from None
-    live = sys.stdout.isatty()
-    on_event = None if live else (lambda ev: print(f"{ev['plant']} {ev['monitor']}: {ev['from'] or '-'} -> "
-                                                   f"{ev['to']} (seq {ev['seq']})", flush=True))
+    events_file = open_events(args.events)
     watcher = Watcher(args.switch, names, args.device_id, args.election_id, args.timeout, events_file, prefix,
-                      on_event)
+                      printer())
     watcher.connect()                  # unreachable / not CIVIC: one line, exit 2
+    follow(watcher, args, events_file, f"watching {args.switch}", "civic watch", lambda wait: poll(watcher, wait))
+    st = watcher.state
+    print(f"stopped: {st.events_total} verdict changes from {len({p for p, _ in st.cells})} plants",
+          file=sys.stderr)
+    plot(args, st)
+    return 0
+
+
+def poll(watcher, wait: float) -> None:
+    """One poll; a lost connection is reopened (with a message), never a traceback."""
+    try:
+        if watcher.conn is None:
+            watcher.connect()
+            print(f"civic watch: reconnected to {watcher.address}", file=sys.stderr, flush=True)
+        watcher.poll(wait)
+    except CivicError as exc:
+        watcher.close()
+        print(f"civic watch: {exc}; retrying in {RECONNECT_S:g} s", file=sys.stderr, flush=True)
+        time.sleep(RECONNECT_S)
+
+
+# -- what civic watch and civic monitor share: a source with a WatchState, polled until the end
+def check_session(args) -> None:
+    if args.duration is not None and args.duration <= 0:
+        raise CivicError("--duration must be > 0")
+    if args.metrics_port is not None and not 0 < args.metrics_port < 65536:
+        raise CivicError("--metrics-port must be 1..65535")
+
+
+def open_events(path: str | None):
+    try:
+        return open(path, "a") if path else None
+    except OSError as exc:
+        raise CivicError(f"cannot open {path}: {exc.strerror}") from None
+
+
+def printer():
+    """Without a terminal (no live table), each change is printed as a line."""
+    if sys.stdout.isatty():
+        return None
+    return lambda ev: print(f"{ev['plant']} {ev['monitor']}: {ev['from'] or '-'} -> {ev['to']} (seq {ev['seq']})",
+                            flush=True)
+
+
+def follow(source, args, events_file, started: str, title: str, poll) -> None:
+    """Serve the metrics, then poll(wait) until --duration is up or Ctrl-C, under the live table on
+    a terminal; the source, the metrics server and the events file are closed whatever happens."""
     stop_metrics = None
     end = None if args.duration is None else time.monotonic() + args.duration
     try:
         if args.metrics_port is not None:
             from civic.metrics import serve
-            stop_metrics = serve(watcher.state, args.metrics_port)
-        print(f"watching {args.switch} ({', '.join(watcher.state.monitors)})"
+            stop_metrics = serve(source.state, args.metrics_port)
+        print(f"{started} ({', '.join(source.state.monitors)})"
               + (f", metrics on :{args.metrics_port}" if args.metrics_port else ""), file=sys.stderr, flush=True)
-        if live:
+        if sys.stdout.isatty():
             from rich.live import Live
 
             from civic.report import console
-            with Live(table(watcher, time.time()), console=console, refresh_per_second=4) as view:
-                loop(watcher, end, lambda: view.update(table(watcher, time.time())))
+            with Live(table(source, time.time(), title), console=console, refresh_per_second=4) as view:
+                loop(end, poll, lambda: view.update(table(source, time.time(), title)))
         else:
-            loop(watcher, end, None)
+            loop(end, poll, None)
     except KeyboardInterrupt:
         pass
     finally:
-        watcher.close()
+        source.close()
         if stop_metrics is not None:
             stop_metrics()
         if events_file is not None:
             events_file.close()
-    st = watcher.state
-    print(f"stopped: {st.events_total} verdict changes from {len({p for p, _ in st.cells})} plants",
-          file=sys.stderr)
-    if args.plot:
-        from civic.timeline import plot_timeline
-        plot_timeline(st.events, args.plot, end_t=time.time())
-    return 0
 
 
-def loop(watcher, end, redraw) -> None:
-    """Poll until `end`; a lost connection is reopened (with a message), never a traceback."""
+def loop(end, poll, redraw) -> None:
+    """poll(wait) until `end` (None: forever), redrawing after each."""
     while end is None or time.monotonic() < end:
-        wait = 0.25 if end is None else max(0.0, min(0.25, end - time.monotonic()))
-        try:
-            if watcher.conn is None:
-                watcher.connect()
-                print(f"civic watch: reconnected to {watcher.address}", file=sys.stderr, flush=True)
-            watcher.poll(wait)
-        except CivicError as exc:
-            watcher.close()
-            print(f"civic watch: {exc}; retrying in {RECONNECT_S:g} s", file=sys.stderr, flush=True)
-            time.sleep(RECONNECT_S)
+        poll(0.25 if end is None else max(0.0, min(0.25, end - time.monotonic())))
         if redraw is not None:
             redraw()
+
+
+def plot(args, state) -> None:
+    if args.plot:
+        from civic.timeline import plot_timeline
+        plot_timeline(state.events, args.plot, end_t=time.time())

@@ -13,7 +13,8 @@ import sys
 from civic import __version__
 from civic.errors import CivicError
 
-COMMANDS = ("train", "crossval", "replay", "evaluate", "configure", "watch", "monitor", "simulate", "diagnose")
+COMMANDS = ("train", "crossval", "replay", "evaluate", "configure", "watch", "monitor", "opcua-user", "simulate",
+            "diagnose")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -21,10 +22,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"civic {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
+        module_name = f"civic.commands.{name.replace('-', '_')}"
         try:
-            module = importlib.import_module(f"civic.commands.{name}")
+            module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:
-            if exc.name == f"civic.commands.{name}":
+            if exc.name == module_name:
                 continue  # subcommand not built in this checkout
             raise
         module.register(sub)

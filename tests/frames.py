@@ -37,14 +37,21 @@ def junk_frames() -> list[bytes]:
 
 
 def interleave(paths, tmp_path, junk=True, name="mixed.pcap"):
-    """Several recordings as plants 10.0.0.1, .2, ... in one capture, junk frames in between."""
+    """Several recordings as plants 10.0.0.1, .2, ... in one capture, junk frames in between. An
+    item may be a list: that plant runs those recordings one after the other, its sequence
+    numbers going on, the r-th starting r * (the longest recording + 1 s) after the first."""
+    runs = [[read_pcap(p) for p in (item if isinstance(item, (list, tuple)) else [item])] for item in paths]
+    period = max(c.messages["t"][-1] - c.messages["t"][0] for run in runs for c in run) + 1.0
     frames, times = [], []
-    for k, path in enumerate(paths):
-        cap = read_pcap(path)
-        fields = {s: cap.messages[s] for s in SIGNALS + ("seq",)}
-        f = build_frames(fields, src_ip=f"10.0.0.{k + 1}")
-        frames += [row.tobytes() for row in f]
-        times += list(cap.messages["t"] + 0.01 * k)
+    for k, run in enumerate(runs):
+        for r, cap in enumerate(run):
+            fields = {s: cap.messages[s] for s in SIGNALS + ("seq",)}
+            if r:
+                fields["seq"] = (int(seq[-1]) + 1 + np.arange(len(cap))) % (1 << 32)
+            seq = fields["seq"]
+            f = build_frames(fields, src_ip=f"10.0.0.{k + 1}")
+            frames += [row.tobytes() for row in f]
+            times += list(cap.messages["t"] - cap.messages["t"][0] + run[0].messages["t"][0] + r * period + 0.01 * k)
     order = np.argsort(times, kind="stable")
     frames = [frames[i] for i in order]
     times = [times[i] for i in order]

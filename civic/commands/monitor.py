@@ -4,6 +4,7 @@ from __future__ import annotations
 import sys
 import time
 
+from civic.commands.watch import add_opcua_args
 
 
 def register(sub) -> None:
@@ -19,6 +20,7 @@ def register(sub) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--write", metavar="OUT.pcap", help="write every captured frame, verdicts written in")
     p.add_argument("--plot", metavar="PNG", help="at the end, the plants' class timeline")
+    add_opcua_args(p)
     p.set_defaults(func=run)
 
 
@@ -27,12 +29,12 @@ def run(args) -> int:
     from civic.entries import load_entries
     from civic.monitor import Monitor
 
-    check_session(args)
+    opcua = check_session(args)
     entries = load_entries(args.entries)
     events_file = open_events(args.events)
     monitor = Monitor(args.iface, entries, events_file, args.write, printer())   # bad iface: one line, exit 2
     start = time.monotonic()
-    follow(monitor, args, events_file, f"monitoring {args.iface}", "civic monitor", monitor.poll)
+    follow(monitor, args, events_file, f"monitoring {args.iface}", "civic monitor", monitor.poll, opcua)
     st = monitor.state
     print(f"stopped: {monitor.frames} frames ({monitor.plant_messages} plant messages) in "
           f"{time.monotonic() - start:.1f} s, {monitor.dropped} dropped by the kernel; {st.events_total} verdict "

@@ -23,7 +23,16 @@ def register(sub) -> None:
 def output_paths(inputs: list[str], output: str) -> list[Path]:
     out = Path(output)
     if len(inputs) == 1 and not out.is_dir():
-        return [out]
+        outs = [out]
+    else:
+        outs = _folder_outputs(inputs, out)
+    for i, o in zip(inputs, outs):
+        if o.exists() and Path(i).exists() and o.samefile(i):
+            raise CivicError(f"{o}: the output would overwrite its input")
+    return outs
+
+
+def _folder_outputs(inputs: list[str], out: Path) -> list[Path]:
     if out.exists() and not out.is_dir():
         raise CivicError(f"{out}: several inputs need an output folder")
     names = [Path(i).name for i in inputs]

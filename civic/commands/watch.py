@@ -21,6 +21,7 @@ def register(sub) -> None:
     p.add_argument("--metrics-port", type=int, metavar="N", help="serve Prometheus metrics on port N")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--plot", metavar="PNG", help="at the end, the plants' class timeline")
+    add_opcua_args(p)
     p.add_argument("--device-id", type=int, default=0, metavar="N")
     p.add_argument("--election-id", type=int, default=1, metavar="N", help="election id (default 1)")
     p.add_argument("--timeout", type=float, default=5.0, metavar="S", help="connect timeout in seconds")
@@ -52,7 +53,7 @@ def table(watcher, now: float, title: str = "civic watch"):
 def run(args) -> int:
     from civic.watch import Watcher
 
-    check_session(args)
+    opcua = check_session(args)
     names, prefix = None, None
     if args.entries:
         from civic.entries import load_entries
@@ -62,7 +63,8 @@ def run(args) -> int:
     watcher = Watcher(args.switch, names, args.device_id, args.election_id, args.timeout, events_file, prefix,
                       printer())
     watcher.connect()                  # unreachable / not CIVIC: one line, exit 2
-    follow(watcher, args, events_file, f"watching {args.switch}", "civic watch", lambda wait: poll(watcher, wait))
+    follow(watcher, args, events_file, f"watching {args.switch}", "civic watch", lambda wait: poll(watcher, wait),
+           opcua)
     st = watcher.state
     print(f"stopped: {st.events_total} verdict changes from {len({p for p, _ in st.cells})} plants",
           file=sys.stderr)
@@ -84,11 +86,29 @@ def poll(watcher, wait: float) -> None:
 
 
 # -- what civic watch and civic monitor share: a source with a WatchState, polled until the end
-def check_session(args) -> None:
+def add_opcua_args(p) -> None:
+    p.add_argument("--opcua", metavar="ENDPOINT", help="serve the verdicts over OPC UA, e.g. "
+                   "opc.tcp://0.0.0.0:4840/civic (read-only; anonymous unless --opcua-cert/--opcua-key)")
+    p.add_argument("--opcua-cert", metavar="CERT", help="server certificate (PEM/DER): the endpoint becomes "
+                   "Basic256Sha256 SignAndEncrypt only")
+    p.add_argument("--opcua-key", metavar="KEY", help="the certificate's private key (PEM/DER)")
+    p.add_argument("--opcua-users", metavar="FILE", help="only these users (NAME:HASH lines, civic opcua-user)")
+    p.add_argument("--opcua-trust", metavar="DIR", help="only clients whose application certificate (or its "
+                   "issuer) is in DIR")
+
+
+def check_session(args):
+    """Check the session's options; the OPC UA server of --opcua (not started yet), or None."""
     if args.duration is not None and args.duration <= 0:
         raise CivicError("--duration must be > 0")
     if args.metrics_port is not None and not 0 < args.metrics_port < 65536:
         raise CivicError("--metrics-port must be 1..65535")
+    if args.opcua is None:
+        if args.opcua_cert or args.opcua_key or args.opcua_users or args.opcua_trust:
+            raise CivicError("--opcua-cert, --opcua-key, --opcua-users and --opcua-trust need --opcua ENDPOINT")
+        return None
+    from civic.opcua import OpcUaServer
+    return OpcUaServer(args.opcua, args.opcua_cert, args.opcua_key, args.opcua_users, args.opcua_trust)
 
 
 def open_events(path: str | None):
@@ -106,17 +126,21 @@ def printer():
                             flush=True)
 
 
-def follow(source, args, events_file, started: str, title: str, poll) -> None:
-    """Serve the metrics, then poll(wait) until --duration is up or Ctrl-C, under the live table on
-    a terminal; the source, the metrics server and the events file are closed whatever happens."""
+def follow(source, args, events_file, started: str, title: str, poll, opcua=None) -> None:
+    """Serve the metrics and OPC UA, then poll(wait) until --duration is up or Ctrl-C, under the live
+    table on a terminal; the source, the servers and the events file are closed whatever happens."""
     stop_metrics = None
-    end = None if args.duration is None else time.monotonic() + args.duration
     try:
         if args.metrics_port is not None:
             from civic.metrics import serve
             stop_metrics = serve(source.state, args.metrics_port)
+        if opcua is not None:
+            opcua.start(source.state)
+            source.on_event = both(source.on_event, opcua.publish)
         print(f"{started} ({', '.join(source.state.monitors)})"
-              + (f", metrics on :{args.metrics_port}" if args.metrics_port else ""), file=sys.stderr, flush=True)
+              + (f", metrics on :{args.metrics_port}" if args.metrics_port else "")
+              + (f", OPC UA on {args.opcua}" if opcua is not None else ""), file=sys.stderr, flush=True)
+        end = None if args.duration is None else time.monotonic() + args.duration
         if sys.stdout.isatty():
             from rich.live import Live
 
@@ -129,10 +153,23 @@ def follow(source, args, events_file, started: str, title: str, poll) -> None:
         pass
     finally:
         source.close()
+        if opcua is not None:
+            opcua.close()
         if stop_metrics is not None:
             stop_metrics()
         if events_file is not None:
             events_file.close()
+
+
+def both(first, second):
+    """One on_event hook calling two (first may be None)."""
+    if first is None:
+        return second
+
+    def hook(ev):
+        first(ev)
+        second(ev)
+    return hook
 
 
 def loop(end, poll, redraw) -> None:

@@ -161,3 +161,14 @@ def test_evaluate_several_plants_in_one_capture(capsys, entries_path, tmp_path):
         for cls, n in per_class.items():
             assert report[mon]["classes"][cls]["support"] == n > 0
             assert report[mon]["classes"][cls]["recall"] == 1.0
+
+
+def test_replay_never_writes_over_its_input(capsys, entries_path, tmp_path):
+    src = TRAINING / "drain_v075_normal_r1.pcap"
+    (tmp_path / "d").mkdir()
+    one = tmp_path / "d" / src.name
+    one.write_bytes(src.read_bytes())
+    for args in (["replay", one, "-o", one], ["replay", one, TRAINING / "fill_error_r1.pcap", "-o", tmp_path / "d"]):
+        code, out, err = civic(capsys, *args, "--entries", entries_path)
+        assert code == 2 and err.strip() == f"civic replay: error: {one}: the output would overwrite its input"
+        assert one.read_bytes() == src.read_bytes()

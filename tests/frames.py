@@ -44,11 +44,12 @@ def interleave(paths, tmp_path, junk=True, name="mixed.pcap"):
     period = max(c.messages["t"][-1] - c.messages["t"][0] for run in runs for c in run) + 1.0
     frames, times = [], []
     for k, run in enumerate(runs):
+        last_seq = None
         for r, cap in enumerate(run):
             fields = {s: cap.messages[s] for s in SIGNALS + ("seq",)}
-            if r:
-                fields["seq"] = (int(seq[-1]) + 1 + np.arange(len(cap))) % (1 << 32)
-            seq = fields["seq"]
+            if last_seq is not None:
+                fields["seq"] = (last_seq + 1 + np.arange(len(cap))) % (1 << 32)
+            last_seq = int(fields["seq"][-1])
             f = build_frames(fields, src_ip=f"10.0.0.{k + 1}")
             frames += [row.tobytes() for row in f]
             times += list(cap.messages["t"] - cap.messages["t"][0] + run[0].messages["t"][0] + r * period + 0.01 * k)

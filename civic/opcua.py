@@ -140,6 +140,25 @@ class ReadOnlyUsers:
         return User(role=UserRole.User)
 
 
+def certificate_uri(cert) -> str | None:
+    """The application URI a certificate names (its subjectAltName URI), if any."""
+    from cryptography import x509
+
+    try:
+        names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        return None
+    uris = names.get_values_for_type(x509.UniformResourceIdentifier)
+    return uris[0] if uris else None
+
+
+def public_der(cert_or_key) -> bytes:
+    from cryptography.hazmat.primitives import serialization
+
+    return cert_or_key.public_key().public_bytes(serialization.Encoding.DER,
+                                                 serialization.PublicFormat.SubjectPublicKeyInfo)
+
+
 def space_cache() -> Path:
     """Where the standard address space is kept between runs (per asyncua version)."""
     from importlib.metadata import version
@@ -198,6 +217,7 @@ class OpcUaServer:
         self._error: str | None = None
         self._cells: dict = {}
         self._plants: dict = {}
+        self._server = None                # the asyncua Server, once serving
 
     # -- the session's side
     def start(self, state) -> None:
@@ -246,6 +266,7 @@ class OpcUaServer:
             self._error = str(exc)
             self._ready.set()
             return
+        self._server = server
         self._ready.set()
         try:
             while True:
@@ -275,22 +296,30 @@ class OpcUaServer:
         server.allow_remote_admin(False)
         server.set_endpoint(self.endpoint)
         server.set_server_name("CIVIC")
-        await server.set_application_uri(f"{NAMESPACE}:{socket.gethostname()}")
+        uri = f"{NAMESPACE}:{socket.gethostname()}"
         if self.cert:
             try:
                 await server.load_certificate(self.cert)
                 await server.load_private_key(self.key)
             except Exception as exc:
                 raise CivicError(f"--opcua-cert/--opcua-key: cannot load ({type(exc).__name__}: {exc})") from None
+            uri = certificate_uri(server.iserver.certificate) or uri     # clients check the two agree
+            if public_der(server.iserver.certificate) != public_der(server.iserver.private_key):
+                raise CivicError(f"--opcua-key {self.key}: not the key of {self.cert}")
             server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt])
             if self.trust:
                 from asyncua.crypto.truststore import TrustStore
-                from asyncua.crypto.validator import CertificateValidator
+                from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
                 store = TrustStore([Path(self.trust)], [])
-                await store.load()
-                server.set_certificate_validator(CertificateValidator(trust_store=store))
+                try:
+                    await store.load()
+                except Exception as exc:
+                    raise CivicError(f"--opcua-trust {self.trust}: cannot load ({exc})") from None
+                server.set_certificate_validator(CertificateValidator(
+                    CertificateValidatorOptions.TRUSTED_VALIDATION | CertificateValidatorOptions.PEER_CLIENT, store))
         else:
             server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+        await server.set_application_uri(uri)
         server.set_identity_tokens([ua.UserNameIdentityToken] if self.users else [ua.AnonymousIdentityToken])
         self.ns = await server.register_namespace(NAMESPACE)
         self._root = await server.nodes.objects.add_folder(ua.NodeId("Plants", self.ns),

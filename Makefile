@@ -7,7 +7,7 @@ P4C    ?= p4c-bm2-ss
 # the prebuilt toolchain's place (p4src/README.md), when installed
 export PATH := $(if $(wildcard /opt/p4/bin),/opt/p4/bin:)$(PATH)
 
-.PHONY: demo test bench p4 p4-tna p4-tna-balance clean venv
+.PHONY: demo test bench p4 p4-tna p4-tna-balance clean venv node-client
 
 venv: $(VENV)/.installed
 
@@ -47,8 +47,16 @@ demo: venv
 		echo "BMv2 output byte-identical with the software model on every recording; its digests give the same events"; \
 	else echo "(BMv2 replay skipped: needs simple_switch_grpc and p4c-bm2-ss on PATH, and root)"; fi
 
-test: venv
+test: venv node-client
 	$(BIN)/python -m pytest -q -rs
+
+# node-opcua's client (npm registry) for the cross-stack OPC UA test; without npm that test skips
+NODE_CLIENT := tests/opcua_node
+node-client:
+	@if command -v npm >/dev/null; then \
+		[ $(NODE_CLIENT)/node_modules/.package-lock.json -nt $(NODE_CLIENT)/package-lock.json ] || \
+		npm ci --prefix $(NODE_CLIENT) --no-audit --no-fund --loglevel=error; \
+	else echo "(no npm: the node-opcua client test will skip)"; fi
 
 bench: venv
 	$(BIN)/python -m bench

@@ -54,7 +54,8 @@ def v1model_build(tmp_path_factory):
 # ------------------------------------------------------------------ CI: the switch and Prometheus tests must run
 # marker -> the tools whose presence makes a skip of such a test a failure under CI; none for prometheus:
 # .ci/run installs it, so under CI its tests must run everywhere
-TOOLCHAIN = {"bmv2": ("p4c-bm2-ss", "simple_switch_grpc"), "tofino": ("bf-p4c",), "prometheus": ()}
+TOOLCHAIN = {"bmv2": ("p4c-bm2-ss", "simple_switch_grpc"), "tofino": ("bf-p4c",), "prometheus": (),
+             "opcua_node": ("node", "npm")}
 _CI_SKIPS: list = []
 
 
@@ -79,6 +80,6 @@ def pytest_sessionfinish(session, exitstatus):
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
     if _CI_SKIPS:
-        terminalreporter.section("CI: switch and Prometheus tests must not skip", sep="!", red=True)
+        terminalreporter.section("CI: switch, Prometheus and OPC UA client tests must not skip", sep="!", red=True)
         for line in _CI_SKIPS:
             terminalreporter.write_line(line)

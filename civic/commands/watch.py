@@ -131,12 +131,12 @@ def follow(source, args, events_file, started: str, title: str, poll, opcua=None
     table on a terminal; the source, the servers and the events file are closed whatever happens."""
     stop_metrics = None
     try:
-        if args.metrics_port is not None:
-            from civic.metrics import serve
-            stop_metrics = serve(source.state, args.metrics_port)
         if opcua is not None:
             opcua.start(source.state)
             source.on_event = both(source.on_event, opcua.publish)
+        if args.metrics_port is not None:
+            from civic.metrics import serve
+            stop_metrics = serve(source.state, args.metrics_port)
         print(f"{started} ({', '.join(source.state.monitors)})"
               + (f", metrics on :{args.metrics_port}" if args.metrics_port else "")
               + (f", OPC UA on {args.opcua}" if opcua is not None else ""), file=sys.stderr, flush=True)

@@ -2,6 +2,7 @@
 counters the output capture's verdict counts, and a Prometheus scrape shows the same numbers."""
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import re
@@ -48,6 +49,22 @@ def scrape(port: int) -> dict:
     return out
 
 
+def read_tags(endpoint: str, cells) -> dict:
+    """{(plant, monitor): (Class, ClassCode, Normal, Warning, Error)} read with asyncua's client."""
+    from asyncua import Client
+
+    async def read():
+        async with Client(endpoint) as client:
+            ns = await client.get_namespace_index("urn:civic")
+            out = {}
+            for plant, monitor in cells:
+                node = await client.nodes.objects.get_child([f"{ns}:Plants", f"{ns}:{plant}", f"{ns}:{monitor}"])
+                out[(plant, monitor)] = tuple([await (await node.get_child(f"{ns}:{n}")).read_value()
+                                               for n in ("Class", "ClassCode", "Normal", "Warning", "Error")])
+            return out
+    return asyncio.run(read())
+
+
 def without_t(events):
     return [{k: v for k, v in e.items() if k != "t"} for e in events]
 
@@ -74,10 +91,11 @@ def test_watch_reports_the_switchs_digests_counters_and_metrics(switch, v1model_
     res = civic("configure", "--switch", switch.address, "--entries", entries, "--pipeline", v1model_build)
     assert res.returncode == 0, res.stderr
     port = free_port()
+    opcua = f"opc.tcp://127.0.0.1:{free_port()}/civic"
     events = tmp_path / "watch.jsonl"
     watch = subprocess.Popen([sys.executable, "-m", "civic", "watch", "--switch", switch.address,
                               "--entries", entries, "--events", events, "--metrics-port", str(port),
-                              "--duration", "120", "--plot", tmp_path / "timeline.png"],
+                              "--duration", "120", "--plot", tmp_path / "timeline.png", "--opcua", opcua],
                              cwd=ROOT, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 30
@@ -98,6 +116,7 @@ def test_watch_reports_the_switchs_digests_counters_and_metrics(switch, v1model_
             time.sleep(0.2)
         time.sleep(2.5)                               # a counter poll after the last frame
         metrics = scrape(port)
+        tags = read_tags(opcua, {(e["plant"], e["monitor"]) for e in want})
     finally:
         watch.send_signal(signal.SIGINT)              # Ctrl-C ends it cleanly
         stdout, stderr = watch.communicate(timeout=20)
@@ -126,6 +145,10 @@ def test_watch_reports_the_switchs_digests_counters_and_metrics(switch, v1model_
     for (plant, monitor), cls in last.items():
         key = ("civic_class", (("monitor", monitor), ("plant", plant)))
         assert metrics[key] == CLASS_CODES[cls]
+        # the same over OPC UA: the class of the last digest and the switch's counters
+        counts = [metrics.get(("civic_verdicts_total", (("class", c), ("monitor", monitor), ("plant", plant))), 0)
+                  for c in ("normal", "warning", "error")]
+        assert tags[(plant, monitor)] == (cls, CLASS_CODES[cls], *counts), (plant, monitor)
 
 
 def test_watch_an_unreachable_switch_is_one_line(tmp_path):

@@ -220,17 +220,21 @@ class OpcUaServer:
         self._server = None                # the asyncua Server, once serving
 
     # -- the session's side
-    def start(self, state) -> None:
-        """Serve `state` (a WatchState); returns once the endpoint listens. A port in use or a bad
-        certificate: CivicError."""
-        self.state = state
+    def start(self) -> None:
+        """Start building and listening in the server's thread; returns at once, so the session's
+        own start-up overlaps it. serve() waits for it."""
         self._thread = threading.Thread(target=self._run, name="civic-opcua", daemon=True)
         self._thread.start()
+
+    def serve(self, state) -> None:
+        """Once the endpoint listens, the tags follow `state` (a WatchState) and the events given to
+        publish(). A port in use or a bad certificate: CivicError."""
         if not self._ready.wait(START_TIMEOUT_S):
             raise CivicError(f"--opcua {self.endpoint}: the server did not start within {START_TIMEOUT_S:g} s")
         if self._error:
             self._thread.join()
             raise CivicError(self._error)
+        self.state = state
 
     def publish(self, ev: dict) -> None:
         """A verdict-change event (civic.events form), from any thread."""
@@ -390,6 +394,8 @@ class OpcUaServer:
 
     async def _sync(self, server) -> None:
         """Counts, and plants seen only by their counts so far, from the session's state."""
+        if self.state is None:
+            return
         for (plant, monitor), pm in list(self.state.cells.items()):
             cell = await self._cell(server, plant, monitor)
             counts = dict(pm.counts)

@@ -32,13 +32,24 @@ def change(plant, monitor, prev, to, t, slope=-1234, level=6000):
             "level": level}
 
 
+def served_on(endpoint, *args):
+    """Start a server and serve until it listens; then close it (for start-up errors)."""
+    server = OpcUaServer(endpoint, *args)
+    server.start()
+    try:
+        server.serve(WatchState(list(MONITORS)))
+    finally:
+        server.close()
+
+
 @pytest.fixture
 def served():
     """An anonymous server on a free port over a WatchState; (endpoint, state, server)."""
     state = WatchState(list(MONITORS))
     endpoint = f"opc.tcp://127.0.0.1:{free_port()}/civic"
     server = OpcUaServer(endpoint)
-    server.start(state)
+    server.start()
+    server.serve(state)
     yield endpoint, state, server
     server.close()
 
@@ -154,7 +165,7 @@ def test_a_port_in_use_is_an_error():
         taken.listen()
         port = taken.getsockname()[1]
         with pytest.raises(CivicError, match="address already in use"):
-            OpcUaServer(f"opc.tcp://127.0.0.1:{port}/civic").start(WatchState(list(MONITORS)))
+            served_on(f"opc.tcp://127.0.0.1:{port}/civic")
 
 
 def make_cert(tmp_path, name="civic"):
@@ -176,7 +187,8 @@ def test_with_a_certificate_only_encrypted_sessions_of_listed_users(tmp_path):
     endpoint = f"opc.tcp://127.0.0.1:{free_port()}/civic"
     server = OpcUaServer(endpoint, str(cert), str(key), str(users))
     state = WatchState(list(MONITORS))
-    server.start(state)
+    server.start()
+    server.serve(state)
     publish(state, change("10.0.0.3", "fill_t1", None, "error", 1.0), 1.0, on_event=server.publish)
     secure = f"Basic256Sha256,SignAndEncrypt,{client_cert},{client_key}"
 
@@ -212,10 +224,9 @@ def test_broken_certificates_and_keys_are_one_line_errors(tmp_path):
     _, other_key = make_cert(tmp_path, "other")
     junk = tmp_path / "junk.pem"
     junk.write_text("-----BEGIN CERTIFICATE-----\nnot a certificate\n-----END CERTIFICATE-----\n")
-    state = WatchState(list(MONITORS))
     for c, k, message in ((junk, key, "cannot load"), (cert, junk, "cannot load"), (cert, other_key, "not the key of")):
         with pytest.raises(CivicError, match=message) as err:
-            OpcUaServer(f"opc.tcp://127.0.0.1:{free_port()}/civic", str(c), str(k)).start(state)
+            served_on(f"opc.tcp://127.0.0.1:{free_port()}/civic", str(c), str(k))
         assert "\n" not in str(err.value)
     with pytest.raises(CivicError, match="go together"):
         OpcUaServer("opc.tcp://127.0.0.1:4840/civic", str(cert))
@@ -254,7 +265,8 @@ def test_a_trust_list_admits_only_its_clients(tmp_path):
     stranger_cert, stranger_key = make_cert(tmp_path, "stranger")
     endpoint = f"opc.tcp://127.0.0.1:{free_port()}/civic"
     server = OpcUaServer(endpoint, str(cert), str(key), trust=str(trusted))
-    server.start(WatchState(list(MONITORS)))
+    server.start()
+    server.serve(WatchState(list(MONITORS)))
 
     async def session(client_cert, client_key):
         client = Client(endpoint)

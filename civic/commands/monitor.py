@@ -25,16 +25,17 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from civic.commands.watch import check_session, follow, open_events, plot, printer
-    from civic.entries import load_entries
-    from civic.monitor import Monitor
+    from civic.commands.watch import follow, opcua_session, open_events, plot, printer
 
-    opcua = check_session(args)
-    entries = load_entries(args.entries)
-    events_file = open_events(args.events)
-    monitor = Monitor(args.iface, entries, events_file, args.write, printer())   # bad iface: one line, exit 2
-    start = time.monotonic()
-    follow(monitor, args, events_file, f"monitoring {args.iface}", "civic monitor", monitor.poll, opcua)
+    with opcua_session(args) as opcua:
+        from civic.entries import load_entries
+        from civic.monitor import Monitor         # numba: imported while the OPC UA server builds
+
+        entries = load_entries(args.entries)
+        events_file = open_events(args.events)
+        monitor = Monitor(args.iface, entries, events_file, args.write, printer())   # bad iface: one line, exit 2
+        start = time.monotonic()
+        follow(monitor, args, events_file, f"monitoring {args.iface}", "civic monitor", monitor.poll, opcua)
     st = monitor.state
     print(f"stopped: {monitor.frames} frames ({monitor.plant_messages} plant messages) in "
           f"{time.monotonic() - start:.1f} s, {monitor.dropped} dropped by the kernel; {st.events_total} verdict "

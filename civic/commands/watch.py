@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import sys
 import time
+from contextlib import contextmanager
 
 from civic.errors import CivicError
 
@@ -51,20 +52,20 @@ def table(watcher, now: float, title: str = "civic watch"):
 
 
 def run(args) -> int:
-    from civic.watch import Watcher
+    with opcua_session(args) as opcua:
+        from civic.watch import Watcher
 
-    opcua = check_session(args)
-    names, prefix = None, None
-    if args.entries:
-        from civic.entries import load_entries
-        entries = load_entries(args.entries)
-        names, prefix = [m.name for m in entries.monitors], entries.plant_prefix
-    events_file = open_events(args.events)
-    watcher = Watcher(args.switch, names, args.device_id, args.election_id, args.timeout, events_file, prefix,
-                      printer())
-    watcher.connect()                  # unreachable / not CIVIC: one line, exit 2
-    follow(watcher, args, events_file, f"watching {args.switch}", "civic watch", lambda wait: poll(watcher, wait),
-           opcua)
+        names, prefix = None, None
+        if args.entries:
+            from civic.entries import load_entries
+            entries = load_entries(args.entries)
+            names, prefix = [m.name for m in entries.monitors], entries.plant_prefix
+        events_file = open_events(args.events)
+        watcher = Watcher(args.switch, names, args.device_id, args.election_id, args.timeout, events_file, prefix,
+                          printer())
+        watcher.connect()                  # unreachable / not CIVIC: one line, exit 2
+        follow(watcher, args, events_file, f"watching {args.switch}", "civic watch",
+               lambda wait: poll(watcher, wait), opcua)
     st = watcher.state
     print(f"stopped: {st.events_total} verdict changes from {len({p for p, _ in st.cells})} plants",
           file=sys.stderr)
@@ -97,8 +98,23 @@ def add_opcua_args(p) -> None:
                    "issuer) is in DIR")
 
 
+@contextmanager
+def opcua_session(args):
+    """Check the session's options; the OPC UA server of --opcua, started first (it builds its address
+    space while the session starts) and closed at the end; None without --opcua."""
+    server = check_session(args)
+    if server is None:
+        yield None
+        return
+    server.start()
+    try:
+        yield server
+    finally:
+        server.close()
+
+
 def check_session(args):
-    """Check the session's options; the OPC UA server of --opcua (not started yet), or None."""
+    """Check the session's options; the OPC UA server of --opcua (not started), or None."""
     if args.duration is not None and args.duration <= 0:
         raise CivicError("--duration must be > 0")
     if args.metrics_port is not None and not 0 < args.metrics_port < 65536:
@@ -132,7 +148,7 @@ def follow(source, args, events_file, started: str, title: str, poll, opcua=None
     stop_metrics = None
     try:
         if opcua is not None:
-            opcua.start(source.state)
+            opcua.serve(source.state)
             source.on_event = both(source.on_event, opcua.publish)
         if args.metrics_port is not None:
             from civic.metrics import serve
@@ -153,8 +169,6 @@ def follow(source, args, events_file, started: str, title: str, poll, opcua=None
         pass
     finally:
         source.close()
-        if opcua is not None:
-            opcua.close()
         if stop_metrics is not None:
             stop_metrics()
         if events_file is not None:

@@ -21,7 +21,7 @@ from civic.events import event
 from civic.pcap_chunks import PcapWriter
 from civic.pipeline.stream import StreamingSwitch, changes
 from civic.watch import WatchState, publish
-from civic.wire import frame_heads, frame_kinds, plant_address
+from civic.wire import frame_heads, frame_kinds, int_to_ip, plant_address
 
 ETH_P_ALL = 0x0003
 SOL_PACKET, PACKET_STATISTICS, PACKET_IGNORE_OUTGOING = 263, 6, 23
@@ -73,6 +73,7 @@ class Monitor:
         self.views = [memoryview(self.buf)[i * SNAP:(i + 1) * SNAP] for i in range(BATCH)]
         self.offset = np.arange(BATCH, dtype=np.int64) * SNAP
         self.frames = self.plant_messages = self.dropped = 0
+        self._seen: set[int] = set()             # plant sources seen
         self._counts_at = 0.0
 
     def poll(self, wait: float) -> None:
@@ -112,6 +113,7 @@ class Monitor:
         heads = frame_heads(self.buf, offset, caplen)
         plant = frame_kinds(heads, caplen, self.entries.udp_port, self.entries.plant_prefix)[2]
         rows = self.switch.process(self.buf, offset, plant)
+        self._note_plants(heads["src"][plant.astype(bool)])
         self.frames += n
         self.plant_messages += int(np.count_nonzero(plant))
         if self.writer is not None:
@@ -121,6 +123,14 @@ class Monitor:
             self.state.last_digest = now          # a verdict change: what a digest would say
             for c in changes(rows, heads["src"], heads["seq"]):
                 publish(self.state, event(c, times[c.index], self.names), now, self.events_file, self.on_event)
+
+    def _note_plants(self, sources: np.ndarray) -> None:
+        """A plant is in the state (class none) from its first message, before its first verdict."""
+        for src in np.unique(sources):
+            if int(src) not in self._seen:
+                self._seen.add(int(src))
+                for name in self.names:
+                    self.state.cell(int_to_ip(int(src)), name)
 
     def update_counts(self) -> None:
         """The verdict counters of every plant seen, into the state."""

@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))        # the veth helper the tests use
 import veth  # noqa: E402
 
-from bench.bench_replay import make_capture  # noqa: E402
+from bench.bench_replay import make_capture, train_entries  # noqa: E402
 
 MESSAGES = 300_000
 RATES = (0, 400_000, 200_000, 100_000, 50_000)          # 0: as fast as the sender goes
@@ -50,9 +50,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        entries = tmp / "entries.json"
-        subprocess.run([sys.executable, "-m", "civic", "train", str(ROOT / "traces" / "training"), "-o",
-                        str(entries)], check=True, capture_output=True)
+        entries = train_entries(tmp / "entries.json")
         capture = tmp / "live.pcap"
         make_capture(capture, MESSAGES)
         cap = read_pcap(capture)

@@ -25,6 +25,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))        # the veth helper and the fleet the tests use
 import veth  # noqa: E402
 
+from bench.bench_replay import train_entries  # noqa: E402
+
 PLANTS = 64
 SPEEDS = (1, 10, 50)
 ENDPOINT = "opc.tcp://127.0.0.1:4840/civic"
@@ -118,9 +120,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        entries = tmp / "entries.json"
-        subprocess.run([sys.executable, "-m", "civic", "train", str(ROOT / "traces" / "training"), "-o",
-                        str(entries)], check=True, capture_output=True)
+        entries = train_entries(tmp / "entries.json")
         fleet = changing_fleet(tmp / "fleet.pcap", plants=PLANTS)
         cap = read_pcap(fleet)
         t = cap.messages["t"]

@@ -107,14 +107,19 @@ def scapy_rate(src: Path, tmp: Path) -> float:
     return len(pkts) / (time.perf_counter() - t0)
 
 
+def train_entries(path: Path) -> Path:
+    """civic train's defaults on the bundled training recordings, into path."""
+    subprocess.run([sys.executable, "-m", "civic", "train", str(ROOT / "traces" / "training"), "-o", str(path)],
+                   check=True, capture_output=True)
+    return path
+
+
 def main() -> None:
     from civic.entries import load_entries
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        entries_path = tmp / "entries.json"
-        subprocess.run([sys.executable, "-m", "civic", "train", str(ROOT / "traces" / "training"), "-o",
-                        str(entries_path)], check=True, capture_output=True)       # civic train's defaults
+        entries_path = train_entries(tmp / "entries.json")
         entries = load_entries(entries_path)
         caps = {n: tmp / f"in_{n}.pcap" for n in (N_SMALL, N_MESSAGES, N_LARGE)}
         for n, path in caps.items():

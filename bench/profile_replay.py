@@ -5,15 +5,13 @@ python -m bench.profile_replay
 """
 from __future__ import annotations
 
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from bench.bench_replay import N_MESSAGES, ROOT, make_capture
+from bench.bench_replay import N_MESSAGES, make_capture, train_entries
 
 STEPS = ("read + record offsets", "parser (plant mask)", "switch kernel (incl. verdict + checksum)",
          "events + counts", "write")
@@ -59,9 +57,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        subprocess.run([sys.executable, "-m", "civic", "train", str(ROOT / "traces" / "training"), "-o",
-                        str(tmp / "entries.json")], check=True, capture_output=True)
-        entries = load_entries(tmp / "entries.json")
+        entries = load_entries(train_entries(tmp / "entries.json"))
         make_capture(tmp / "in.pcap", N_MESSAGES)
         profile(tmp / "in.pcap", entries, tmp / "out.pcap")             # compiled and warm
         runs = [profile(tmp / "in.pcap", entries, tmp / "out.pcap") for _ in range(REPEAT)]

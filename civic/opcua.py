@@ -40,6 +40,7 @@ import logging
 import os
 import secrets
 import socket
+import sys
 import threading
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -214,6 +215,7 @@ class OpcUaServer:
         self._queue: asyncio.Queue | None = None
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
+        self._closing = threading.Event()
         self._error: str | None = None
         self._cells: dict = {}
         self._plants: dict = {}
@@ -244,6 +246,9 @@ class OpcUaServer:
     def close(self) -> None:
         if self._thread is None:
             return
+        self._closing.set()
+        if not self._ready.is_set():             # still building (a start-up error of the session):
+            return                               # it stops once built; a daemon, it holds no exit up
         if self._loop is not None and not self._loop.is_closed():
             try:
                 self._loop.call_soon_threadsafe(self._queue.put_nowait, None)
@@ -259,8 +264,12 @@ class OpcUaServer:
         try:
             asyncio.run(self._main())
         except Exception as exc:                   # never a traceback from the server thread
-            self._error = self._error or f"--opcua {self.endpoint}: {exc}"
-            self._ready.set()
+            if self._ready.is_set():               # it served: say why the tags stop following
+                print(f"civic: the OPC UA server on {self.endpoint} stopped: {type(exc).__name__}: {exc}",
+                      file=sys.stderr, flush=True)
+            else:
+                self._error = f"--opcua {self.endpoint}: {exc}"
+                self._ready.set()
 
     async def _main(self) -> None:
         self._loop, self._queue = asyncio.get_running_loop(), asyncio.Queue()
@@ -273,7 +282,7 @@ class OpcUaServer:
         self._server = server
         self._ready.set()
         try:
-            while True:
+            while not self._closing.is_set():
                 try:
                     ev = await asyncio.wait_for(self._queue.get(), COUNTS_S)
                 except TimeoutError:
@@ -286,6 +295,10 @@ class OpcUaServer:
                         continue           # a burst of changes first, in order; counts after it
                 await self._sync(server)
         finally:
+            # its clock task sleeps a second between ticks and stop() awaits it: cancelled first
+            clock, server.iserver.time_task = server.iserver.time_task, None
+            if clock is not None:
+                clock.cancel()
             await server.stop()
 
     async def _serve(self):

@@ -27,11 +27,12 @@ def register(sub) -> None:
 def run(args) -> int:
     from civic.commands.watch import follow, opcua_session, open_events, plot, printer
 
+    from civic.entries import load_entries
+
+    entries = load_entries(args.entries)
     with opcua_session(args) as opcua:
-        from civic.entries import load_entries
         from civic.monitor import Monitor         # numba: imported while the OPC UA server builds
 
-        entries = load_entries(args.entries)
         events_file = open_events(args.events)
         monitor = Monitor(args.iface, entries, events_file, args.write, printer())   # bad iface: one line, exit 2
         start = time.monotonic()

@@ -52,14 +52,14 @@ def table(watcher, now: float, title: str = "civic watch"):
 
 
 def run(args) -> int:
+    names, prefix = None, None
+    if args.entries:
+        from civic.entries import load_entries
+        entries = load_entries(args.entries)
+        names, prefix = [m.name for m in entries.monitors], entries.plant_prefix
     with opcua_session(args) as opcua:
         from civic.watch import Watcher
 
-        names, prefix = None, None
-        if args.entries:
-            from civic.entries import load_entries
-            entries = load_entries(args.entries)
-            names, prefix = [m.name for m in entries.monitors], entries.plant_prefix
         events_file = open_events(args.events)
         watcher = Watcher(args.switch, names, args.device_id, args.election_id, args.timeout, events_file, prefix,
                           printer())

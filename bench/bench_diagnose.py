@@ -361,6 +361,7 @@ def _structure_variants(model):
 
     return {
         "all general candidates (no elimination)": lambda c: c,
+        "without spill below the rim": lambda c: [m for m in c if getattr(m, "general_key", "") != "spill_out"],
         "without pump_head": drop("pump_head(P1)"),
         "without pump_dead_zone": drop("pump_dead_zone(P1)"),
         "without pump_head, pump_dead_zone": drop("pump_head(P1)", "pump_dead_zone(P1)"),

@@ -253,17 +253,17 @@ class Weir(Spill):
         return out
 
 
-
 class SpillOut(Overflow):
     """An unmeasured tank that loses water to outside above a crest just below its rim (free run):
     q = c*(h - crest) out of the plant, an orifice link with min_level = crest and exponent 1
     (existing schema), next to the tank's split overflow at the rim. On Cascaded Tanks the
     upper tank's water partly leaves the rig before its level reaches the rim that holds it
     (the outflow jet missing the lower tank at high head, or a slow spill over an uneven rim:
-    one record cannot tell which); a finite loss *into* the tank below, or a weir instead of
-    the rim, did not explain the record (docs/diagnose.md). Free: c and `crest`, the crest as a
-    fraction of the rim the model has when this edits (`late`: after a split spill fitted with
-    it; a crest fitted in litres sat above the fitted rim, the loss never active). Without an
+    one record cannot tell which); a finite loss *into* the tank below, or this loss instead of
+    the split spill, did not explain the record (docs/diagnose.md). Free: c and `crest`, the
+    crest as a fraction of the rim the model has when this edits (`late`: after a split spill
+    fitted with it; a crest fitted as a level of its own sat above the fitted rim on half the
+    record, the loss never active). Without an
     overflow on the tank the rim is the candidate's range top. The exponent is fixed at 1 (1.5
     and a free exponent fitted and transferred alike). Its own slot in the free-run joint fit
     (`general_key`), beside the split spill."""

@@ -361,6 +361,7 @@ def _structure_variants(model):
 
     return {
         "all general candidates (no elimination)": lambda c: c,
+        "without spill below the rim": lambda c: [m for m in c if getattr(m, "general_key", "") != "spill_out"],
         "without pump_head": drop("pump_head(P1)"),
         "without pump_dead_zone": drop("pump_dead_zone(P1)"),
         "without pump_head, pump_dead_zone": drop("pump_head(P1)", "pump_dead_zone(P1)"),
@@ -411,7 +412,7 @@ def transfer_structures(names=None, n_init: int = 50) -> dict:
         base = prob.fit([], rows=every)
         loc = localise(model, r, engine, prob.residuals(base.model, base.x0_extra) * prob.sigma, prob.sigma)
         cands = F._general([c for fam in CATALOGUE if fam is not Coefficient for c in fam.candidates(model, loc)])
-        mechs = sorted(select(cands), key=lambda c: bool(F._starts(c)) and c.name == "overflow")
+        mechs = sorted(select(cands), key=F._free_rim_last)
         singles = [prob.fit([m], rows=every, start_cal=base.cal, start_x0=base.x0_extra, starts=F._starts(m))
                    for m in mechs]
         fits = [prob.fit(mechs, rows=every, start_cal=base.cal, start_x0=base.x0_extra,

@@ -271,7 +271,7 @@ class SimulationError:
         if k == 0 and self.x0_extra:
             # measured tanks from the data, unmeasured ones as given (fitted nuisance values)
             part = {key: val for key, val in self.x0_extra.items()}
-            sensed_only = measured_state(model, sig, max(1, self.n_init))
+            sensed_only = measured_state(model, sig, 1)
             sensed_only.update(part)
             return sensed_only
         return initial_state(model, sig, self.n_init if k == 0 else 1)

@@ -45,6 +45,8 @@ MAX_ALTERNATIVES = 3
 # final joint refit is multi-start and every kept finding must survive its ablation
 FREE_RUN_CAL = (0.1, 5.0)
 MIN_ABLATION = 0.01     # a finding stays if removing it raises the held-out RMSE by 1 %
+FIXED_ABLATION = 0.05   # one without free parameters goes only if removing it lowers that RMSE by 5 %
+                        # (the blocked CV's run-to-run spread on Cascaded Tanks: 0.160-0.178 V)
 CV_BUDGET = 15          # evaluations per parameter of a warm per-fold refit
 FREE_RUN_FOLDS = 3      # blocked k-fold CV in time (two-fold without unmeasured tanks)
 
@@ -144,6 +146,7 @@ class Diagnosis:
     ablation: dict = field(default_factory=dict)   # free run: held-out RMSE with each finding removed
     integrator: dict = field(default_factory=dict)  # free run: integrator accuracy check
     uncertainty: list = field(default_factory=list)  # per finding: jackknife standard errors
+    joint: FitResult | None = None          # free run: the joint multi-start fit before elimination
 
 
 class Problem:
@@ -385,7 +388,18 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         diag.verdict = "no significant mismatch: the calibrated nominal model explains the recording"
         diag.model_improved = _refit_all(prob, [], base).model
     elif chosen:
-        final_all = _refit_all(prob, chosen, current)
+        start, mechs = current, chosen
+        if free and diag.joint is not None:
+            # two starts, the better on all rows refitted: the per-fold optimum (trained without
+            # the last block) and the joint multi-start optimum of the same findings; from the
+            # first alone the final refit of half the Cascaded Tanks record stopped at 0.175 V
+            # where the joint optimum's values led to 0.138 V
+            by_label = {m.label: m for m in diag.joint.mechanisms}
+            if all(m.label in by_label for m in chosen):
+                warm = [by_label[m.label] for m in chosen]
+                if _all_rows_sse(prob, warm, diag.joint) < _all_rows_sse(prob, chosen, current):
+                    start, mechs = diag.joint, warm
+        final_all = _refit_all(prob, mechs, start)
         diag.model_improved = final_all.model
         diag.final_all = final_all
         if free:
@@ -518,6 +532,13 @@ def _starts(cand: Mechanism) -> list:
     return []
 
 
+def _all_rows_sse(prob: Problem, mechs: list[Mechanism], start: FitResult) -> float:
+    """Weighted SSE on all rows of `mechs` at their current values, from `start`'s calibration
+    and unmeasured initial volumes (no fit)."""
+    model = prob.build(mechs, [m.x0 for m in mechs], start.cal)
+    return float(np.sum(prob.residuals(model, start.x0_extra) ** 2))
+
+
 def _refit_all(prob: Problem, mechs: list[Mechanism], start: FitResult) -> FitResult:
     """Final parameters from all rows (training and held out)."""
     rows = np.ones_like(prob.engine.train)
@@ -532,11 +553,33 @@ def _general(candidates: list[Mechanism]) -> list[Mechanism]:
     for c in candidates:
         if c.name in ("dead_time", "leak"):
             continue
-        key = (c.name, c.component)
+        key = (getattr(c, "general_key", c.name), c.component)
         if key not in best or len(c.params) > len(best[key].params):
             best[key] = c
     shaped = {c.component for c in best.values() if c.name == "sensor_characteristic"}
     return [c for (name, comp), c in best.items() if not (name == "sensor_offset" and comp in shaped)]
+
+
+def _removal_score(w: FitResult, current: FitResult) -> float:
+    """How much removing a finding raises the pooled held-out free-run RMSE (1: no change)."""
+    return w.val_rmse / max(current.val_rmse, 1e-300)
+
+
+def _removable(m: Mechanism, score: float) -> bool:
+    """Backward elimination drops a finding whose removal raises the held-out RMSE by less than
+    MIN_ABLATION: parsimony, fewer parameters to fit. A finding without free parameters (a spill
+    where the sensor clips: its rim is read from the data) adds none, so it goes only when its
+    removal *lowers* the held-out RMSE beyond the cross-validation's own spread (FIXED_ABLATION).
+    On half of the Cascaded Tanks record (one brief clip episode) removing T2's spill changed
+    the held-out RMSE by -0.02 % and -1.7 % in two passes, and the model without it, transferred
+    to the other half's long overflow, stored water above the sensor's range (docs/diagnose.md)."""
+    return score <= (1 + MIN_ABLATION if m.params else 1 - FIXED_ABLATION)
+
+
+def _free_rim_last(c: Mechanism) -> bool:
+    """Sort key of the free-run joint fit: an overflow with a free rim goes last (its extra starts
+    spread the rim)."""
+    return bool(_starts(c)) and c.name == "overflow" and "volume" in c.params
 
 
 def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: FitResult, progress=None):
@@ -546,7 +589,7 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
     by MIN_ABLATION, the least useful finding goes. The last pass is the ablation table;
     findings are ordered by their contribution."""
     # a free rim is the flattest parameter: that candidate goes last, its extra starts spread the rim
-    mechs = sorted(_general(candidates), key=lambda c: bool(_starts(c)) and c.name == "overflow")
+    mechs = sorted(_general(candidates), key=_free_rim_last)
     every = np.ones_like(prob.engine.train)
     # each candidate alone first: the joint fit also starts from the best single one's values
     singles = []
@@ -562,7 +605,11 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
         k = int(np.argmin([r.train_sse for r in singles]))
         warm = [singles[k].mechanisms[0] if j == k else m for j, m in enumerate(mechs)]
         fits.append(prob.fit(warm, rows=every, start_cal=singles[k].cal, start_x0=singles[k].x0_extra))
-    full = min(fits, key=lambda r: r.train_sse)
+    # the objective minimised: all rows (`train_sse` alone covers the first 65 %). Picking the start
+    # by the blocked CV's held-out RMSE instead picked the same fit on Cascaded Tanks (whole
+    # record and both halves)
+    full = min(fits, key=lambda r: r.train_sse + r.val_sse)
+    diag.joint = full
     # physically negligible in the joint fit: not a finding, and no use refitting it per fold
     mechs = [m for m in full.mechanisms if not m.negligible(m.values(), prob.model)]
     # per-fold refits start at the joint optimum: a short budget suffices
@@ -583,14 +630,16 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
                                    "fold_sse": list(current.fold_sse), "base_fold_sse": list(w.fold_sse),
                                    "parameters": m.report_parameters()})
             first_pass = False
-        i = int(np.argmin([w.val_rmse for w in without]))
-        if without[i].val_rmse > current.val_rmse * (1 + MIN_ABLATION):
+        score = [_removal_score(w, current) for w in without]
+        eligible = [j for j, m in enumerate(mechs) if _removable(m, score[j])]
+        if not eligible:
             break
+        i = min(eligible, key=lambda j: score[j])
         mechs = mechs[:i] + mechs[i + 1:]
         current = without[i]
     if not mechs:
         return [], base
-    order = sorted(range(len(mechs)), key=lambda i: -without[i].val_rmse)
+    order = sorted(range(len(mechs)), key=lambda i: -_removal_score(without[i], current))
     chosen = [mechs[i] for i in order]
     current.mechanisms = list(chosen)
     current.fold_params = [[fp[i] for i in order] for fp in current.fold_params]

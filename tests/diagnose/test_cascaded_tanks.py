@@ -41,10 +41,18 @@ def test_cascaded_tanks_round_trip(tmp_path, capsys):
     assert rep["mismatch"] is True
     names = [(f["mechanism"], f["component"]) for f in rep["findings"]]
     assert ("overflow", "T1") in names and any(m == "flow_law" for m, _ in names)
-    spill = next(f for f in rep["findings"] if (f["mechanism"], f["component"]) == ("overflow", "T1"))
+    spill = next(f for f in rep["findings"] if (f["mechanism"], f["component"]) == ("overflow", "T1")
+                 and "fraction" in f["parameters"])
     assert 0.0 < spill["parameters"]["fraction"] < 1.0      # part into T2, the rest out
+    # T1 also loses water to outside a little below that rim (third pass of issue #20): without
+    # it the record fitted to 0.149 V and its blocked CV held out 0.178 V
+    below = [f for f in rep["findings"] if (f["mechanism"], f["component"]) == ("overflow", "T1")
+             and "crest" in f["parameters"]]
+    assert len(below) == 1 and 0.5 <= below[0]["parameters"]["crest"] < 1.0
+    assert below[0]["parameters"]["to"] == "outside"
     before, after = rep["fit"]["before"]["rmse"]["y_V"], rep["fit"]["after"]["rmse"]["y_V"]
-    assert after <= 0.15 < before
+    assert after <= 0.145 < before
+    assert rep["fit"]["ablation"]["heldout_rmse"] < 0.17
     # held-out evidence: every kept finding's removal raises the blocked-CV free-run RMSE,
     # and the findings come ordered by that contribution
     abl = rep["fit"]["ablation"]
@@ -61,7 +69,7 @@ def test_cascaded_tanks_round_trip(tmp_path, capsys):
     capsys.readouterr()
     rc = main(["simulate", "--model", str(improved), "--inputs", str(DATA), "--init-samples", "50"])
     line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("y_V")][0]
-    assert rc == 0 and float(line.split()[1]) <= 0.15
+    assert rc == 0 and float(line.split()[1]) <= 0.145
     # the improved model runs in the simulator on another experiment
     other = tmp_path / "other.csv"
     _other_inputs(other, improved)

@@ -67,3 +67,55 @@ def test_spill_at_the_clip_follows_a_fitted_sensor_map():
     alone = prob.build([spill], [spill.x0], np.ones(len(prob.cal)))
     assert abs(alone.tank("T2").overflow.volume - 10.0) < 1e-9
     assert spill.n_params == 1 and "reading" not in spill.values() and spill.label == "overflow(T2->outside)"
+
+
+def test_spill_below_the_rim_of_an_unmeasured_tank():
+    """Free run: an unmeasured tank gets a finite spill to outside above a crest just below the rim
+    of its split spill (read when it edits, after that spill), a candidate of its own next to the
+    split spill in the joint fit."""
+    from civic.diagnose.fit import Calibration, Problem, _free_rim_last, _general
+    from civic.diagnose.locate import Localisation
+    from civic.diagnose.mechanisms import Overflow
+    from civic.diagnose.mechanisms.overflow import SpillOut
+
+    m = PlantModel.from_toml(MODEL)
+    loc = Localisation("simulation", ["y_V"], tanks=["T1", "T2"], unmeasured=["T1"],
+                       max_volume={"T1": 20.0, "T2": 10.0}, signals_present=["y_V"])
+    (c,) = SpillOut.candidates(m, loc)
+    assert c.component == "T1" and c.fixed["to"] == "outside" and c.name == "overflow" and c.late
+    split = next(x for x in Overflow.candidates(m, loc) if "fraction" in x.params)
+    prob = Problem.__new__(Problem)          # only the model edits (no engine needed)
+    prob.model, prob.cal = m, Calibration.of(m)
+    rim = 8.0 * 2.177                        # the split spill's rim: T1 at 8 dm
+    built = prob.build([c, split], [np.array([0.02, 0.75]), np.array([rim, 0.6])], np.ones(len(prob.cal)))
+    assert abs(c.onset_volume(built) - 0.75 * rim) < 1e-9     # crest at 6 dm, whatever the order
+    # nothing below the crest, c*(h - crest) above it, all of it leaving the plant
+    V = np.array([[5.0 * 2.177, 2.0], [7.0 * 2.177, 2.0]])
+    ref = split.apply(m, [rim, 0.6])
+    f0, f = (flows(x, V, np.zeros((2, 0)), np.zeros((2, 1))) for x in (ref, built))
+    lost = f0.net[:, 0] - f.net[:, 0]
+    assert abs(lost[0]) < 1e-12 and abs(lost[1] - 0.02 * 1.0) < 1e-12
+    assert np.allclose(f.net[:, 1], f0.net[:, 1]) and abs(f.outside[1] - f0.outside[1] - 0.02) < 1e-12
+    # without a rim on the tank, the crest is a fraction of the candidate's range top
+    alone = c.apply(m, [0.02, 0.5])
+    assert abs(c.onset_volume(alone) - 10.0) < 1e-9
+    # measured plants (equation error) get none; in the joint fit it does not displace the split
+    assert SpillOut.candidates(m, Localisation("equation", ["T1"], tanks=["T1"])) == []
+    general = sorted(_general(Overflow.candidates(m, loc) + [c]), key=_free_rim_last)
+    assert c in general and "fraction" in general[-1].params
+    assert c.negligible({"c": 1e-5, "crest": 0.9}, m) and not c.negligible({"c": 0.02, "crest": 0.9}, m)
+
+
+def test_backward_elimination_keeps_a_parameter_free_finding_on_a_tie():
+    """A finding with free parameters goes when its removal raises the held-out RMSE by less than
+    1 %; one without (a spill where the sensor clips) only when its removal lowers it by 5 %."""
+    from civic.diagnose.fit import FIXED_ABLATION, MIN_ABLATION, _removable
+    from civic.diagnose.mechanisms.overflow import AtClip
+
+    m = PlantModel.from_toml(MODEL)
+    clip = AtClip("T2", {}, {}, {"volume": 10.0, "to": "outside", "sensor": "y_V", "reading": 10.0}, model=m)
+    law = FlowLaw("out2", {"exponent": 0.4}, {"exponent": (0.15, 2.0)}, {"form": "exponent"})
+    tie = 1.0 + 0.5 * MIN_ABLATION
+    assert _removable(law, tie) and not _removable(clip, tie)
+    assert not _removable(clip, 1.0 - 0.5 * FIXED_ABLATION) and _removable(clip, 1.0 - 1.5 * FIXED_ABLATION)
+    assert not _removable(law, 1.0 + 2.0 * MIN_ABLATION)

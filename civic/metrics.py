@@ -16,10 +16,10 @@ import math
 import time
 
 from civic.errors import CivicError
+from civic.wire import CLASS_CODES
 
 METRICS = ("civic_verdicts_total", "civic_class", "civic_events_total", "civic_last_digest_age_seconds",
            "civic_switch_up")
-CLASS_NAMES = {1: "normal", 2: "warning", 3: "error"}
 
 
 class WatchCollector:
@@ -37,7 +37,7 @@ class WatchCollector:
         current = GaugeMetricFamily("civic_class", "Current class per plant and monitor "
                                     "(0 none yet, 1 normal, 2 warning, 3 error)", labels=["plant", "monitor"])
         for (plant, monitor), cell in cells:
-            for code, name in CLASS_NAMES.items():
+            for name, code in CLASS_CODES.items():
                 verdicts.add_metric([plant, monitor, name], cell.counts.get(code, 0))
             current.add_metric([plant, monitor], cell.cls)
         yield verdicts

@@ -137,7 +137,8 @@ class Monitor:
         counts = self.switch.counts
         for m, name in enumerate(self.names):
             for slot in np.flatnonzero(counts[m].sum(axis=1)):
-                self.state.apply_counts(plant_address(self.entries.plant_prefix, slot), name, {k: int(counts[m, slot, k]) for k in (1, 2, 3)})
+                self.state.apply_counts(plant_address(self.entries.plant_prefix, slot), name,
+                                        {k: int(counts[m, slot, k]) for k in (1, 2, 3)})
         self._counts_at = time.monotonic()
 
     def drops(self) -> int:

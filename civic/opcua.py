@@ -48,15 +48,20 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from civic.errors import CivicError
+from civic.wire import CLASS_CODES
 
 NAMESPACE = "urn:civic"
 EVENT_TYPE = "CivicVerdictChangeEventType"
-CLASS_CODES = {"none": 0, "normal": 1, "warning": 2, "error": 3}
 SEVERITY = {"normal": 100, "warning": 500, "error": 900}     # OPC UA 1..1000: low, medium-high, high
 COUNTS_S = 0.25               # counts and new plants are read from the session state this often
 START_TIMEOUT_S = 15.0
 TICK = object()               # no change arrived within COUNTS_S
 NULL_DATE = datetime(1601, 1, 1, tzinfo=timezone.utc)   # OPC UA's DateTime 0
+# a monitor object's variables: name -> (value before the first verdict, asyncua VariantType name)
+VARIABLES = {"Class": ("none", "String"), "ClassCode": (0, "UInt16"), "Since": (NULL_DATE, "DateTime"),
+             "Normal": (0, "UInt64"), "Warning": (0, "UInt64"), "Error": (0, "UInt64"),
+             "Slope": (0, "Int32"), "Level": (0, "UInt16")}
+COUNT_VARIABLES = ((1, "Normal"), (2, "Warning"), (3, "Error"))
 PBKDF2 = "pbkdf2_sha256"
 PBKDF2_ROUNDS = 200_000
 
@@ -366,13 +371,9 @@ class OpcUaServer:
         path = f"Plants/{plant}/{monitor}"
         mnode = await pnode.add_object(ua.NodeId(path, self.ns), ua.QualifiedName(monitor, self.ns))
         variables = {}
-        for name, value, vtype in (("Class", "none", ua.VariantType.String), ("ClassCode", 0, ua.VariantType.UInt16),
-                                   ("Since", NULL_DATE, ua.VariantType.DateTime),
-                                   ("Normal", 0, ua.VariantType.UInt64), ("Warning", 0, ua.VariantType.UInt64),
-                                   ("Error", 0, ua.VariantType.UInt64), ("Slope", 0, ua.VariantType.Int32),
-                                   ("Level", 0, ua.VariantType.UInt16)):
-            variables[name] = await mnode.add_variable(ua.NodeId(f"{path}/{name}", self.ns),
-                                                       ua.QualifiedName(name, self.ns), ua.Variant(value, vtype))
+        for name, (value, vtype) in VARIABLES.items():
+            variables[name] = await mnode.add_variable(ua.NodeId(f"{path}/{name}", self.ns), ua.QualifiedName(
+                name, self.ns), ua.Variant(value, getattr(ua.VariantType, vtype)))
         events = await server.get_event_generator(self._etype, mnode)
         cell = self._cells[(plant, monitor)] = _Cell(mnode, variables, events)
         return cell
@@ -380,11 +381,9 @@ class OpcUaServer:
     async def _write(self, server, cell: _Cell, values: dict, when: datetime) -> None:
         from asyncua import ua
 
-        types = {"Class": ua.VariantType.String, "ClassCode": ua.VariantType.UInt16, "Since": ua.VariantType.DateTime,
-                 "Slope": ua.VariantType.Int32, "Level": ua.VariantType.UInt16}
         now = datetime.now(timezone.utc)
         for name, value in values.items():
-            vtype = types.get(name, ua.VariantType.UInt64)
+            vtype = getattr(ua.VariantType, VARIABLES[name][1])
             await server.write_attribute_value(cell.variables[name].nodeid, ua.DataValue(
                 ua.Variant(value, vtype), SourceTimestamp=when, ServerTimestamp=now))
 
@@ -413,7 +412,6 @@ class OpcUaServer:
             cell = await self._cell(server, plant, monitor)
             counts = dict(pm.counts)
             if counts != cell.counts:
-                await self._write(server, cell, {name: int(counts.get(code, 0)) for code, name in
-                                                 ((1, "Normal"), (2, "Warning"), (3, "Error"))},
-                                  datetime.now(timezone.utc))
+                values = {name: int(counts.get(code, 0)) for code, name in COUNT_VARIABLES}
+                await self._write(server, cell, values, datetime.now(timezone.utc))
                 cell.counts = counts

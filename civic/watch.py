@@ -22,11 +22,10 @@ from civic.switch.connection import SwitchConnection
 from civic.switch.counters import read_counter
 from civic.switch.digests import digest_members, enable_digest
 from civic.switch.schema import COUNTER_VERDICTS, DIGEST_VERDICT_CHANGE, TABLE_PLANT_PREFIX, SwitchSchema, mon
-from civic.wire import VERDICT_NAMES, plant_address
+from civic.wire import CLASS_CODES, VERDICT_NAMES, plant_address
 
 WATCH_ELECTION_ID = 1
 COUNTER_POLL_S = 1.0
-CLASSES = {1: "normal", 2: "warning", 3: "error"}
 
 
 @dataclass
@@ -53,7 +52,7 @@ class WatchState:
 
     def apply_event(self, ev: dict, now: float) -> None:
         c = self.cell(ev["plant"], ev["monitor"])
-        c.cls = {v: k for k, v in CLASSES.items()}[ev["to"]]
+        c.cls = CLASS_CODES[ev["to"]]
         c.since = ev["t"]
         c.changed_at = now
         self.events_total += 1

@@ -26,7 +26,6 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from civic.commands.watch import follow, opcua_session, open_events, plot, printer
-
     from civic.entries import load_entries
 
     entries = load_entries(args.entries)

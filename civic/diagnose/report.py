@@ -71,8 +71,7 @@ def _finding_intervals(diag: Diagnosis, prev, res, mech=None) -> list[list[float
         eng.x0_extra = dict(res.x0_extra)
         vol = eng.simulate(res.model)["volumes"]
         i = model.tank_names.index(fitted.component)
-        # a spill below the rim (`SpillOut`) acts above its crest
-        top = fitted.onset_volume(res.model) if hasattr(fitted, "onset_volume") else p["volume"]
+        top = fitted.onset_volume(res.model)        # its rim; a spill below the rim: its crest
         return _mask_intervals(vol[:, i] >= top * (1 - 1e-6), t, model.dt, gap)
     prob_sigma = diag.sigma
     Rp = _resid(diag, prev) / prob_sigma

@@ -15,6 +15,6 @@ from .valve_characteristic import ValveCharacteristic
 CATALOGUE = (Leak, DeadTime, ValveCharacteristic, PumpHead, Overflow, Spill, Weir, SpillOut, SensorOffset,
              SensorSaturation, Coefficient, FlowLaw, SensorCharacteristic, PumpDeadZone)
 
-__all__ = ["Mechanism", "CATALOGUE", "Leak", "DeadTime", "ValveCharacteristic", "PumpHead", "Overflow", "Spill", "Weir", "SpillOut",
-           "SensorOffset", "SensorSaturation", "Coefficient", "coefficient_paths", "FlowLaw",
+__all__ = ["Mechanism", "CATALOGUE", "Leak", "DeadTime", "ValveCharacteristic", "PumpHead", "Overflow", "Spill",
+           "Weir", "SpillOut", "SensorOffset", "SensorSaturation", "Coefficient", "coefficient_paths", "FlowLaw",
            "SensorCharacteristic", "PumpDeadZone"]

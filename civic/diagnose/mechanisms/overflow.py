@@ -90,6 +90,10 @@ class Overflow(Mechanism):
                     f"{p['to']}, the rest to {p['rest']}")
         return f"{self.component} spills above {p['volume']:.4g} L into {p['to']}"
 
+    def onset_volume(self, model) -> float:
+        """Litres above which it acts, in a model it has edited: its rim."""
+        return float(self.values()["volume"])
+
 
 def _volume_at(model, s, reading: float) -> float:
     """The tank volume at which sensor `s` gives `reading` (e.g. its clip value)."""
@@ -123,10 +127,19 @@ class AtClip(Overflow):
         tk = model.tank(self.component)
         s = model.find("sensor", self.fixed["sensor"])
         nominal = max(float(self.fixed["at_nominal"]), 1e-12)
-        tk.overflow = OverflowSpec(to=p["to"], volume=float(p["volume"]) * _volume_at(model, s, self.fixed["reading"]) / nominal)
+        clip = _volume_at(model, s, self.fixed["reading"])
+        tk.overflow = OverflowSpec(to=p["to"], volume=float(p["volume"]) * clip / nominal)
 
     def describe(self, p):
         return f"{self.component} spills where {p['sensor']} clips (nominal map: {p['volume']:.4g} L) into {p['to']}"
+
+
+def spill_link_name(model, tank: str) -> str:
+    """A free link name for a spill from `tank`: spill_T1, spill_T1_, ..."""
+    name = f"spill_{tank}"
+    while any(lk.name == name for lk in model.links):
+        name += "_"
+    return name
 
 
 SPILL_HEADROOM = 0.05   # the instant overflow moves this fraction of the rim volume up
@@ -152,9 +165,7 @@ class Spill(Overflow):
     def edit(self, model, p):
         tk = model.tank(self.component)
         rim_level = float(p["rim_level"])
-        name = f"spill_{self.component}"
-        while any(lk.name == name for lk in model.links):
-            name += "_"
+        name = spill_link_name(model, self.component)
         model.links.append(Link(name=name, from_=self.component, to=p["to"], coeff=float(p["c"]),
                                 law="orifice", exponent=float(p.get("exponent", 1.0)),
                                 min_level=rim_level))
@@ -218,9 +229,7 @@ class Weir(Spill):
         return {**p, "volume": round(p["rim_level"] * area, 6), "c_volume": round(p["c"] / area, 6)}
 
     def edit(self, model, p):
-        name = f"spill_{self.component}"
-        while any(lk.name == name for lk in model.links):
-            name += "_"
+        name = spill_link_name(model, self.component)
         model.links.append(Link(name=name, from_=self.component, to=p["to"], coeff=float(p["c"]),
                                 law="orifice", exponent=1.0, min_level=float(p["rim_level"])))
 
@@ -273,14 +282,9 @@ class SpillOut(Overflow):
     hidden = ("top",)     # litres: the rim when the tank has none
 
     def edit(self, model, p):
-        model.links.append(Link(name=self.link_name(model), from_=self.component, to=p["to"], coeff=float(p["c"]),
-                                law="orifice", exponent=1.0, min_level=self.crest_level(model, p)))
-
-    def link_name(self, model) -> str:
-        name = f"spill_{self.component}"
-        while any(lk.name == name for lk in model.links):
-            name += "_"
-        return name
+        model.links.append(Link(name=spill_link_name(model, self.component), from_=self.component, to=p["to"],
+                                coeff=float(p["c"]), law="orifice", exponent=1.0,
+                                min_level=self.crest_level(model, p)))
 
     def crest_level(self, model, p) -> float:
         tk = model.tank(self.component)
@@ -290,7 +294,7 @@ class SpillOut(Overflow):
         return float(p["crest"]) * rim / tk.area
 
     def onset_volume(self, model) -> float:
-        """Litres above which it acts, in a model it has edited (its link's crest)."""
+        """Litres above which it acts, in a model it has edited: its link's crest."""
         lk = next(x for x in reversed(model.links) if x.from_ == self.component and x.name.startswith("spill_"))
         return lk.min_level * model.tank(self.component).area
 

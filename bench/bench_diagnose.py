@@ -133,11 +133,15 @@ SWEEP = {
     "saturation_L1": ("sensor_saturation", "L1", (9.0,)),
     # real-rig physics (issue #20): a flow law that is not Torricelli, a bent level sensor
     # (calibrated at 5 L), a pump dead zone, an overflow whose spill partly leaves the plant
-    "flowlaw_pipe23": ("flow_law", "pipe23", (0.55, 0.6)),     # q = c*|dh|**n, n instead of 0.5
-    "flowlaw_V2": ("flow_law", "V2", (0.6, 0.7)),
-    "sensorchar_L2": ("sensor_characteristic", "L2", (1.05, 1.1)),  # y = 5**(1-n)*V**n
+    "flowlaw_pipe23": ("flow_law", "pipe23", (0.4, 0.55, 0.6)),     # q = c*|dh|**n, n instead of 0.5
+    "flowlaw_V2": ("flow_law", "V2", (0.4, 0.6, 0.7)),
+    "flowlaw_V1": ("flow_law", "V1", (0.6,)),
+    "sensorchar_L2": ("sensor_characteristic", "L2", (0.9, 1.05, 1.1)),  # y = 5**(1-n)*V**n
+    "sensorchar_L1": ("sensor_characteristic", "L1", (0.9, 1.05, 1.1)),   # T1 may sit at its rim
+    "sensorchar_L3": ("sensor_characteristic", "L3", (1.1,)),
     "deadzone_P1": ("pump_dead_zone", "P1", (0.03, 0.05)),     # no flow below this command
-    "split_T1": ("overflow", "T1", (0.5,)),                     # rim 9 L, this share into T4, rest out
+    "split_T1": ("overflow", "T1", (0.2, 0.5, 0.8)),            # rim 9 L, this share into T4, rest out
+    "split_T2": ("overflow", "T2", (0.5,)),                     # rim 8.5 L (bundled setpoints), idem
     "clean": (None, None, (0.0,)),
 }
 
@@ -145,6 +149,11 @@ NEW_KINDS = ("flowlaw", "sensorchar", "deadzone", "split")
 
 
 SPILL_RIM = 8.5    # L: the rim of the finite spill cases
+
+
+def split_rim(tank: str) -> float:
+    """L: the rim of a split-spill case; T2's setpoints stay below 9 L, so its rim is lower."""
+    return 9.0 if tank == "T1" else SPILL_RIM
 
 
 def sweep_plant(nominal, case: str, mag: float, seed: int):
@@ -184,7 +193,7 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
     elif kind == "deadzone":
         m.find("pump", comp).input_offset = mag
     elif kind == "split":
-        m.tank(comp).overflow = Overflow(to="T4", volume=9.0, fraction=mag, rest="outside")
+        m.tank(comp).overflow = Overflow(to="T4", volume=split_rim(comp), fraction=mag, rest="outside")
     elif kind == "saturation":
         m.find("sensor", comp).max = mag
     return m
@@ -202,7 +211,7 @@ def sweep_case(job) -> dict:
     nominal = PlantModel.from_toml(ROOT / "configs" / "plant.toml")
     plant = sweep_plant(nominal, case, mag, seed)
     schedule = None
-    if case.startswith("spill"):
+    if case.startswith("spill") or case == "split_T2":
         # the bundled case's setpoints (T2 up to 8.75 L): random ones rarely pass the 8.5 L rim
         from civic.plant.control import schedule_from_operation
 
@@ -216,7 +225,8 @@ def sweep_case(job) -> dict:
     if case.startswith("overflow"):
         active = bool(np.max(res.volumes[:, 0]) >= mag - 1e-9)
     elif case.startswith("split"):
-        active = bool(np.max(res.volumes[:, 0]) >= 9.0 - 1e-9)
+        rim = split_rim(want[1])
+        active = bool(np.max(res.volumes[:, nominal.tank_names.index(want[1])]) >= rim - 1e-9)
     elif case.startswith("spill"):
         active = bool(np.max(res.volumes[:, nominal.tank_names.index(want[1])]) > SPILL_RIM + 0.05)
     elif case.startswith("saturation"):

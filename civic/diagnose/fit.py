@@ -470,10 +470,11 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
 def _alternatives(results, cand: Mechanism, res: FitResult, current: FitResult) -> list[dict]:
     """Candidates the held-out data does not separate from the chosen one: significant on their
     own against the same reference, and within ALT_DBIC of the chosen one's held-out BIC (best
-    first). They are reported, never added as findings."""
+    first). They are reported, never added as findings; a variant of the chosen mechanism on the
+    same component is not an alternative explanation."""
     out = []
     for c, r in sorted(results, key=lambda cr: cr[1].val_bic):
-        if c is cand or r.val_bic - res.val_bic >= ALT_DBIC:
+        if (c.name, c.component) == (cand.name, cand.component) or r.val_bic - res.val_bic >= ALT_DBIC:
             continue
         ok, dbic, gain = significant(r, current)
         if ok:

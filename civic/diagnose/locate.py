@@ -46,6 +46,7 @@ class Localisation:
     intervals: dict = field(default_factory=dict)     # column -> [[t0, t1], ...]
     regimes: list[str] = field(default_factory=list)  # human-readable regime findings
     plateaus: dict = field(default_factory=dict)      # tank -> volume of a level plateau at its top
+    plateau_readings: dict = field(default_factory=dict)  # sensor -> its median reading on that plateau
     at_rim: dict = field(default_factory=dict)        # measured tank -> seconds its level is at/above the rim
     idle_links: list = field(default_factory=list)    # links whose head never leaves the noise: no flow
     sensor_plateaus: dict = field(default_factory=dict)  # sensor -> exact stuck value at its max
@@ -131,9 +132,10 @@ def mask_intervals(mask, t0, t1, gap: float = 0.0, min_rows: int = 1) -> list[li
     return merge(out, gap=gap)
 
 
-def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict]:
-    """Level plateaus at a tank's top (overflow) and sensors stuck at an exact maximum (saturation)."""
-    tanks, sensors = {}, {}
+def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict, dict]:
+    """Level plateaus at a tank's top (overflow: the top of the band, and the sensor's median
+    reading there) and sensors stuck at an exact maximum (saturation)."""
+    tanks, sensors, readings = {}, {}, {}
     n = len(rec.t)
     min_run = max(5, int(round(3.0 / dt)))
     for s in model.sensors:
@@ -158,8 +160,10 @@ def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict]
             q = s.invert(top)
             tk = model.tank(s.tank)
             vol = q * tk.area if s.quantity == "level" else q
-            tanks.setdefault(s.tank, vol)
-    return tanks, sensors
+            if s.tank not in tanks:
+                tanks[s.tank] = vol
+                readings[s.name] = float(np.median(ys[at]))
+    return tanks, sensors, readings
 
 
 RIM_TOL = 0.03     # L: a (smoothed) measured volume this close below the rim counts as at the rim
@@ -336,7 +340,7 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
     else:
         # one simulated signal depends on every tank upstream: all tanks are suspects
         loc.tanks = list(model.tank_names) if loc.flagged else []
-    loc.plateaus, loc.sensor_plateaus = _plateaus(model, rec, engine.dt)
+    loc.plateaus, loc.sensor_plateaus, loc.plateau_readings = _plateaus(model, rec, engine.dt)
     loc.idle_links = _idle_links(model, rec)
     loc.at_rim = {t: round(float(m.sum()) * engine.dt, 3) for t, m in _rim_masks(model, rec).items()}
     # a sensor stuck at one value below the range the model gives it is direct evidence,

@@ -64,6 +64,11 @@ def make_fault(nominal, name):
     elif name == "sensorchar_L2":
         s = m.find("sensor", "L2")
         s.exponent, s.gain = 1.1, 5.0 ** -0.1       # calibrated at 5 L, bent elsewhere
+    elif name == "sensorchar_L1":
+        # the same bend on L1: the loop holds the reading, so T1 fills to its 10 L rim and sits
+        # there reading 10.77 (above the 10.0 the model gives the rim; seed 11: 60 s at the rim)
+        s = m.find("sensor", "L1")
+        s.exponent, s.gain = 1.1, 5.0 ** -0.1
     elif name == "deadzone_P1":
         m.find("pump", "P1").input_offset = 0.05
     elif name == "split_T1":

@@ -17,7 +17,8 @@ from .sensor_offset import drives_no_flow
 
 class SensorCharacteristic(Mechanism):
     name = "sensor_characteristic"
-    hidden = ("base", "base_gain", "range", "q_mid")  # the model's offset and gain; the readings' range
+    # the model's offset and gain; the readings' range and middle; where a tank seen at its rim reads
+    hidden = ("base", "base_gain", "range", "q_mid", "anchor")
 
     def edit(self, model, p):
         self.edit_sensor(model.find("sensor", self.component), p)
@@ -25,15 +26,21 @@ class SensorCharacteristic(Mechanism):
     def edit_sensor(self, s, p):
         s.exponent = float(p["exponent"])
         s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
-        if "gain" in p:
-            g = float(p["gain"])
-        else:
-            # tied: the bent map equals the model's at the middle of the readings (q_mid), so
-            # only the bend and the offset are free and the curve cannot slide along the
-            # gain/exponent/offset valley of a narrow range (which extrapolates wildly)
-            q_mid = max(float(self.fixed.get("q_mid", 1.0)), 1e-9)
-            g = q_mid ** (1.0 - float(p["exponent"]))
+        g = float(p["gain"]) if "gain" in p else self._tied_gain(p)
         s.gain = float(self.fixed.get("base_gain", 1.0)) * g
+
+    def _tied_gain(self, p) -> float:
+        """The gain factor of the tied maps. Bend and offset free: the map equals the model's at
+        the middle of the readings (q_mid), so the curve cannot slide along the gain/exponent/
+        offset valley of a narrow range (which extrapolates wildly). The bend alone (a tank seen
+        at its rim): the map passes through (rim, the plateau's reading) with the model's zero."""
+        n = float(p["exponent"])
+        if "offset" not in self.params and self.fixed.get("anchor"):
+            q_a, y_a = self.fixed["anchor"]
+            top = y_a - float(self.fixed.get("base", 0.0)) - float(p.get("offset", 0.0))
+            return max(top, 1e-9) / (float(self.fixed.get("base_gain", 1.0)) * max(q_a, 1e-9) ** n)
+        q_mid = max(float(self.fixed.get("q_mid", 1.0)), 1e-9)
+        return q_mid ** (1.0 - n)
 
     @classmethod
     def candidates(cls, model, loc):
@@ -43,11 +50,23 @@ class SensorCharacteristic(Mechanism):
                 continue
             span = max(loc.signal_span.get(s.name, 1.0), 1e-6)
             rng = getattr(loc, "signal_range", {}).get(s.name)
+            fixed = {"base": s.offset, "base_gain": s.gain, "range": rng,
+                     "q_mid": float(s.invert(0.5 * (rng[0] + rng[1]))) if rng else 1.0,
+                     "anchor": _rim_anchor(model, loc, s)}
             out.append(cls(s.name, {"exponent": 1.02, "offset": 0.0, "gain": 1.0},
                            {"exponent": (0.5, 2.0), "offset": (-0.25 * span, 0.25 * span), "gain": (0.2, 3.0)},
-                           {"base": s.offset, "base_gain": s.gain, "range": rng,
-                            "q_mid": float(s.invert(0.5 * (rng[0] + rng[1]))) if rng else 1.0}))
+                           fixed))
+            if fixed["anchor"]:
+                # a tank held at its rim pins the map's top: the bend alone, through the rim and
+                # the model's zero. (Tied at the middle instead, the bend and the offset slid along
+                # a flat valley on part of the record and missed its lowest levels: a bent L1 with
+                # T1 at its rim was named an overflow)
+                out.append(cls(s.name, {"exponent": 1.02}, {"exponent": (0.5, 2.0)}, dict(fixed)))
         return out
+
+    @property
+    def label(self) -> str:
+        return f"{self.name}({self.component}{'' if 'offset' in self.params else ', bend through the rim'})"
 
     def tied(self) -> "SensorCharacteristic":
         """The two-parameter variant (exponent, offset; gain tied at the readings' middle)."""
@@ -56,9 +75,10 @@ class SensorCharacteristic(Mechanism):
 
     def values(self, theta=None) -> dict:
         out = super().values(theta)
+        if "exponent" in out:
+            out.setdefault("offset", 0.0)
         if "gain" not in out and "exponent" in out:
-            q_mid = max(float(self.fixed.get("q_mid", 1.0)), 1e-9)
-            out["gain"] = q_mid ** (1.0 - float(out["exponent"]))
+            out["gain"] = self._tied_gain(out)
         return out
 
     def negligible(self, p, model):
@@ -80,3 +100,21 @@ class SensorCharacteristic(Mechanism):
 
     def describe(self, p):
         return f"{self.component} = {p['gain']:.3g}*gain*level**{p['exponent']:.3g} {p['offset']:+.3g}"
+
+
+def _rim_anchor(model, loc, s) -> tuple[float, float] | None:
+    """(rim quantity, median plateau reading) of a tank whose reading plateaus at or above the
+    reading the model gives its rim: the tank is at its rim there (it cannot hold more), whatever
+    the sensor's map. The median, not the plateau's top: the map must put the noisy readings at the
+    rim, where the overflow holds the tank. None when the tank has no finite rim or no such
+    plateau (a plateau below the rim is an overflow candidate's)."""
+    tk = model.tank(s.tank)
+    rim, vol = tk.rim_volume(), loc.plateaus.get(s.tank)
+    reading = loc.plateau_readings.get(s.name)
+    if vol is None or reading is None or not np.isfinite(rim) or vol < rim - RIM_SHARE * max(vol, 1e-9):
+        return None
+    scale = tk.area if s.quantity == "level" else 1.0
+    return (rim / scale, float(reading))
+
+
+RIM_SHARE = 0.02   # a plateau within 2 % below the rim is at the rim (as the overflow candidates read it)

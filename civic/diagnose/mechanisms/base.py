@@ -118,6 +118,22 @@ def tanks_touching(model: PlantModel, tank: str) -> set[str]:
     return out
 
 
+RIM_SHARE = 0.02   # a plateau within 2 % below a tank's rim is at the rim
+
+
+def below_rim(tank, vol: float) -> bool:
+    """A plateau at `vol` litres sits below `tank`'s rim (beyond RIM_SHARE): a lower rim's, an
+    overflow candidate's; at or above it the tank is at its rim."""
+    return vol < tank.rim_volume() - RIM_SHARE * max(vol, 1e-9)
+
+
+def unmeasured_top(tank, loc) -> float:
+    """The highest volume an unmeasured tank's rim can have: its rim, or the most it holds in the
+    simulation, or 10 level units when neither is finite."""
+    top = min(tank.rim_volume(), loc.max_volume.get(tank.name, tank.rim_volume()))
+    return top if top < float("inf") else 10.0 * tank.area
+
+
 def free_run(loc) -> bool:
     """A real rig seen through a free-run simulation (some tank unmeasured): where the shape of
     the physics (flow laws, sensor maps, actuator thresholds) is a candidate, refitted jointly

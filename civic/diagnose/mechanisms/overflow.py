@@ -10,7 +10,7 @@ import numpy as np
 
 from civic.plant.model import OUTSIDE, Link, Overflow as OverflowSpec
 
-from .base import Mechanism, free_run, lower_tanks
+from .base import Mechanism, below_rim, free_run, lower_tanks, unmeasured_top
 
 
 class Overflow(Mechanism):
@@ -41,7 +41,7 @@ class Overflow(Mechanism):
             if tk.name in loc.plateaus:
                 # measured tank sitting at a level it never exceeds: the rim is that level
                 vol = loc.plateaus[tk.name]
-                if vol < tk.rim_volume() - 0.02 * max(vol, 1e-9):
+                if below_rim(tk, vol):
                     # a plateau at the sensor's clip: the rim follows a sensor map fitted with it
                     at_clip = tk.name in clipped and abs(clipped[tk.name][0] - vol) <= 0.02 * max(vol, 1e-9)
                     for d in dests:
@@ -63,16 +63,14 @@ class Overflow(Mechanism):
                 # there too (level held at the rim) rather than rising on unseen? The rim is
                 # where the sensor clips, also under a sensor map fitted with it (`AtClip`)
                 vol, sensor, reading = clipped[tk.name]
-                if vol < tk.rim_volume() - 0.02 * max(vol, 1e-9):
+                if below_rim(tk, vol):
                     for d in dests:
                         if d != tk.name:
                             out.append(AtClip(tk.name, {}, {}, {"volume": round(vol, 4), "to": d,
                                                                  "sensor": sensor, "reading": reading}, model=model))
             elif tk.name in loc.unmeasured and tk.name in loc.tanks:
                 # unmeasured tank: the rim is a free parameter
-                hi = min(tk.rim_volume(), loc.max_volume.get(tk.name, tk.rim_volume()))
-                if not hi < float("inf"):
-                    hi = 10.0 * tk.area
+                hi = unmeasured_top(tk, loc)
                 lo = 0.3 * hi
                 for d in dests:
                     if d != tk.name:
@@ -249,7 +247,7 @@ class Weir(Spill):
         cmax = 100.0 * max([lk.coeff for lk in model.links] + [p.gain for p in model.pumps] + [0.1])
         for tk in model.tanks:
             vol = loc.plateaus.get(tk.name)
-            if vol is None or tk.name not in measured or not vol < tk.rim_volume() - 0.02 * max(vol, 1e-9):
+            if vol is None or tk.name not in measured or not below_rim(tk, vol):
                 continue
             top = vol / tk.area
             # over the wall the spill goes where the datasheet overflow goes (if it has one)
@@ -310,9 +308,7 @@ class SpillOut(Overflow):
         for tk in model.tanks:
             if tk.name not in loc.unmeasured or tk.name not in loc.tanks:
                 continue
-            top = min(tk.rim_volume(), loc.max_volume.get(tk.name, tk.rim_volume()))
-            if not top < float("inf"):
-                top = 10.0 * tk.area
+            top = unmeasured_top(tk, loc)
             c0 = _outflow_scale(model, tk.name)
             out.append(cls(tk.name, {"c": 0.2 * c0, "crest": 0.9}, {"c": (1e-3 * c0, 10.0 * c0), "crest": (0.5, 1.0)},
                            {"to": OUTSIDE, "top": top}))

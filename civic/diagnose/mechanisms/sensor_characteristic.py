@@ -11,7 +11,7 @@ import copy as _copy
 import numpy as np
 
 from ..compare import INVENTORY_BAND, INVENTORY_SPREAD
-from .base import Mechanism
+from .base import Mechanism, below_rim
 from .sensor_offset import drives_no_flow
 
 
@@ -111,10 +111,8 @@ def _rim_anchor(model, loc, s) -> tuple[float, float] | None:
     tk = model.tank(s.tank)
     rim, vol = tk.rim_volume(), loc.plateaus.get(s.tank)
     reading = loc.plateau_readings.get(s.name)
-    if vol is None or reading is None or not np.isfinite(rim) or vol < rim - RIM_SHARE * max(vol, 1e-9):
+    if vol is None or reading is None or not np.isfinite(rim) or below_rim(tk, vol):
         return None
     scale = tk.area if s.quantity == "level" else 1.0
     return (rim / scale, float(reading))
 
-
-RIM_SHARE = 0.02   # a plateau within 2 % below the rim is at the rim (as the overflow candidates read it)

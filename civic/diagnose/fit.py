@@ -95,6 +95,11 @@ class Calibration:
                 m.set(path, nom * float(f))
         return m
 
+    def pinned(self, factors) -> list[str]:
+        """Components whose factor sits at a bound of the spread."""
+        tol = 1e-6 * (self.hi - self.lo)
+        return [c for (c, _), f in zip(self.paths, factors) if f <= self.lo + tol or f >= self.hi - tol]
+
     def report(self, factors) -> dict:
         return {path: {"nominal": nom, "value": round(nom * float(f), 6), "change_pct": round((f - 1) * 100, 2)}
                 for (_, path), nom, f in zip(self.paths, self.nominal, factors)}
@@ -354,7 +359,7 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
     prob.sigma = sigma
     base = prob.evaluate([])
     Rb = prob.residuals(base.model, base.x0_extra)
-    loc = localise(model, rec, engine, Rb * sigma, sigma)
+    loc = localise(model, rec, engine, Rb * sigma, sigma, pinned=cal.pinned(base.cal))
     diag = Diagnosis(model, base.model, base.model, engine, loc, base, base, sigma=sigma)
     diag.cal_report = cal.report(base.cal)
     if not loc.flagged and not loc.suspect:
@@ -561,9 +566,32 @@ def _general(candidates: list[Mechanism]) -> list[Mechanism]:
     return [c for (name, comp), c in best.items() if not (name == "sensor_offset" and comp in shaped)]
 
 
-def _removal_score(w: FitResult, current: FitResult) -> float:
-    """How much removing a finding raises the pooled held-out free-run RMSE (1: no change)."""
-    return w.val_rmse / max(current.val_rmse, 1e-300)
+def _removal_score(w: FitResult, current: FitResult, folds: list[int] | None = None) -> float:
+    """How much removing a finding raises the held-out free-run RMSE (1: no change): pooled over
+    every fold, or over the `folds` that can judge it (`_judging_folds`)."""
+    if folds is None or len(folds) == len(current.fold_sse):
+        return w.val_rmse / max(current.val_rmse, 1e-300)
+    return math.sqrt(sum(w.fold_sse[f] for f in folds) / max(sum(current.fold_sse[f] for f in folds), 1e-300))
+
+
+def _judging_folds(prob: Problem, fit: FitResult) -> list[list[int] | None]:
+    """Per mechanism of `fit`, the cross-validation folds that can judge it. One that acts
+    only in some rows (a spill above a rim) is judged by the folds that see it act both in
+    their training rows (where they fit it) and in their held-out rows (where it matters): a
+    fold that never saw the spill in training only extrapolates what it could not fit, one that
+    never holds it out sees its side effects only. None: it acts everywhere (every fold judges);
+    []: no fold can (the rows where it acts sit in one block), so the data cannot remove it.
+    On the second half of the Cascaded Tanks record T2 reaches its sensor's clip once, in the
+    last block: the pooled error, whose one telling fold never fitted the spill there, dropped
+    it, and the model then stored water above the sensor's range on the first half."""
+    prob.engine.x0_extra = dict(fit.x0_extra)
+    vol = prob.engine.simulate(fit.model)["volumes"][prob.engine.skip:]
+    out = []
+    for m in fit.mechanisms:
+        rows = m.active_rows(fit.model, vol)
+        out.append(None if rows is None else
+                   [f for f, mask in enumerate(prob.folds()) if (rows & mask).any() and (rows & ~mask).any()])
+    return out
 
 
 def _removable(m: Mechanism, score: float) -> bool:
@@ -613,6 +641,7 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
     diag.joint = full
     # physically negligible in the joint fit: not a finding, and no use refitting it per fold
     mechs = [m for m in full.mechanisms if not m.negligible(m.values(), prob.model)]
+    judges = [j for m, j in zip(full.mechanisms, _judging_folds(prob, full)) if any(m is x for x in mechs)]
     # per-fold refits start at the joint optimum: a short budget suffices
     start = dict(start_cal=full.cal, start_x0=full.x0_extra, budget=CV_BUDGET)
     current = prob.evaluate(mechs, **start)
@@ -631,12 +660,12 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
                                    "fold_sse": list(current.fold_sse), "base_fold_sse": list(w.fold_sse),
                                    "parameters": m.report_parameters()})
             first_pass = False
-        score = [_removal_score(w, current) for w in without]
-        eligible = [j for j, m in enumerate(mechs) if _removable(m, score[j])]
+        score = [_removal_score(w, current, judges[j]) for j, w in enumerate(without)]
+        eligible = [j for j, m in enumerate(mechs) if judges[j] != [] and _removable(m, score[j])]
         if not eligible:
             break
         i = min(eligible, key=lambda j: score[j])
-        mechs = mechs[:i] + mechs[i + 1:]
+        mechs, judges = mechs[:i] + mechs[i + 1:], judges[:i] + judges[i + 1:]
         current = without[i]
     if not mechs:
         return [], base
@@ -652,7 +681,8 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
                               "gain": 1 - current.val_sse / max(w.val_sse, 1e-300), "prev": w,
                               "heldout_rmse_without": w.val_rmse})
     diag.ablation = {"heldout_rmse": current.val_rmse, "folds": len(prob.folds()),
-                     "without": [{"finding": mechs[i].label, "heldout_rmse": without[i].val_rmse}
+                     "without": [{"finding": mechs[i].label, "heldout_rmse": without[i].val_rmse,
+                                  "judged_by_folds": "all" if judges[i] is None else judges[i]}
                                  for i in order]}
     return chosen, current
 

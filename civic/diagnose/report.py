@@ -70,9 +70,7 @@ def _finding_intervals(diag: Diagnosis, prev, res, mech=None) -> list[list[float
     if fitted.name == "overflow" and isinstance(eng, SimulationError):
         eng.x0_extra = dict(res.x0_extra)
         vol = eng.simulate(res.model)["volumes"]
-        i = model.tank_names.index(fitted.component)
-        top = fitted.onset_volume(res.model)        # its rim; a spill below the rim: its crest
-        return _mask_intervals(vol[:, i] >= top * (1 - 1e-6), t, model.dt, gap)
+        return _mask_intervals(fitted.active_rows(res.model, vol), t, model.dt, gap)
     prob_sigma = diag.sigma
     Rp = _resid(diag, prev) / prob_sigma
     Ra = _resid(diag, res) / prob_sigma
@@ -189,7 +187,8 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
     if diag.ablation:
         fit["ablation"] = {"heldout_rmse": round(diag.ablation["heldout_rmse"], 6),
                            "folds": diag.ablation["folds"],
-                           "without": [{"finding": r["finding"], "heldout_rmse": round(r["heldout_rmse"], 6)}
+                           "without": [{"finding": r["finding"], "heldout_rmse": round(r["heldout_rmse"], 6),
+                                        "judged_by_folds": r["judged_by_folds"]}
                                        for r in diag.ablation["without"]]}
     if diag.integrator:
         fit["integrator"] = diag.integrator
@@ -207,6 +206,7 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
             "error": loc.kind,
             "flagged": loc.flagged,
             "suspect": loc.suspect,
+            "pinned_coefficients": loc.pinned,
             "scores": {c: {k: round(v, 3) for k, v in s.items()} for c, s in loc.scores.items()},
             "intervals": {c: v for c, v in loc.intervals.items()},
             "regimes": loc.regimes,

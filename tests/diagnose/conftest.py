@@ -13,6 +13,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 PLANT = ROOT / "configs" / "plant.toml"
 DURATION = 600.0
+BUNDLED_OPERATION = {"flowlaw_V2_pinned": "example_none"}   # case -> the bundled case whose operation it runs
 
 
 def real_plant(nominal):
@@ -61,6 +62,10 @@ def make_fault(nominal, name):
         m.find("link", "pipe23").exponent = 0.6
     elif name == "flowlaw_V2":
         m.find("link", "V2").exponent = 0.7
+    elif name == "flowlaw_V2_pinned":
+        # a milder exponent on a coefficient 1.4 % low: calibrated, V2's coefficient pins at -5 %
+        link = m.find("link", "V2")
+        link.exponent, link.coeff = 0.45, 0.30 * 0.986
     elif name == "sensorchar_L2":
         s = m.find("sensor", "L2")
         s.exponent, s.gain = 1.1, 5.0 ** -0.1       # calibrated at 5 L, bent elsewhere
@@ -104,8 +109,10 @@ def closed_loop_case(nominal):
             from civic.plant.control import make_schedule, schedule_from_operation
 
             plant = make_fault(nominal, name)
-            if name.startswith("spill"):    # the bundled case's setpoints: T2 passes 8.5 L
-                truth = json.loads((ROOT / "traces" / "diagnose" / "example_leak_t3" / "truth.json").read_text())
+            if name in BUNDLED_OPERATION or name.startswith("spill"):
+                # a bundled case's operation (spills: its setpoints take T2 past 8.5 L)
+                case = BUNDLED_OPERATION.get(name, "example_leak_t3")
+                truth = json.loads((ROOT / "traces" / "diagnose" / case / "truth.json").read_text())
                 schedule = schedule_from_operation(truth["operation"])
             else:
                 schedule = make_schedule(DURATION, np.random.default_rng(seed + 100)) if extra_water else None

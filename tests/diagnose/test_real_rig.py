@@ -35,6 +35,31 @@ def test_real_rig_effect_named(closed_loop_case, nominal, name, mech, comp, par,
         assert 0 <= a["dbic_vs_chosen"] < 10
 
 
+def test_pinned_coefficient_makes_its_tank_a_suspect(closed_loop_case, nominal):
+    """V2's flow exponent 0.45 on a coefficient 1.4 % low (the bundled clean case's operation):
+    the calibration averages the shape into V2's coefficient, pinned at the -5 % edge, and leaves
+    T3's balance near its noise, so no column is flagged. The pinned coefficient makes T3 a
+    suspect and the held-out data name the flow law, alone."""
+    d = diagnose(nominal, closed_loop_case("flowlaw_V2_pinned"))
+    assert not d.loc.flagged and d.loc.pinned == ["V2"] and d.loc.suspect == ["T3"]
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("flow_law", "V2")]
+    assert abs(d.final_all.mechanisms[0].values()["exponent"] - 0.45) < 0.02
+
+
+def test_pinned_and_driven_tank(nominal):
+    from civic.diagnose.fit import Calibration
+    from civic.diagnose.locate import driven_tank
+
+    cal = Calibration.of(nominal)
+    factors = [1.0] * len(cal)
+    factors[[c for c, _ in cal.paths].index("V2")] = 0.95
+    factors[[c for c, _ in cal.paths].index("P1")] = 1.05
+    assert sorted(cal.pinned(factors)) == ["P1", "V2"]
+    assert cal.pinned([1.0] * len(cal)) == []
+    # a link acts on its source's level, a pump on its delivery tank
+    assert (driven_tank(nominal, "V2"), driven_tank(nominal, "pipe23"), driven_tank(nominal, "P1")) == ("T3", "T2", "T1")
+
+
 def test_report_evidence_and_alternatives(closed_loop_case, nominal):
     """JSON: every existing key stays; each finding gets heldout_error, uncertainty,
     alternatives (with an experiment) and a plot panel on the affected signal."""

@@ -77,6 +77,11 @@ class Mechanism:
     def candidates(cls, model: PlantModel, loc) -> list["Mechanism"]:
         return []
 
+    def active_rows(self, model: PlantModel, volumes: np.ndarray):
+        """Rows of a simulation of `model` (tank volumes, one row per sample) where it acts;
+        None: everywhere (a flow law, a sensor map, a coefficient)."""
+        return None
+
     def negligible(self, p: dict, model: PlantModel) -> bool:
         """True when the fitted effect is too small to matter physically (not a finding,
         however significant statistically): e.g. an offset below the sensor noise."""

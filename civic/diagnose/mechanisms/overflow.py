@@ -90,7 +90,11 @@ class Overflow(Mechanism):
 
     def onset_volume(self, model) -> float:
         """Litres above which it acts, in a model it has edited: its rim."""
-        return float(self.values()["volume"])
+        return float(model.tank(self.component).rim_volume())
+
+    def active_rows(self, model, volumes):
+        """Where the tank is at or above the volume where it acts."""
+        return volumes[:, model.tank_names.index(self.component)] >= self.onset_volume(model) * (1 - 1e-6)
 
 
 def _volume_at(model, s, reading: float) -> float:
@@ -132,6 +136,12 @@ class AtClip(Overflow):
         return f"{self.component} spills where {p['sensor']} clips (nominal map: {p['volume']:.4g} L) into {p['to']}"
 
 
+def spill_onset(model, tank: str) -> float:
+    """Litres above which the spill link of `tank` (the last one added) acts: its crest."""
+    lk = next(x for x in reversed(model.links) if x.from_ == tank and x.name.startswith("spill_"))
+    return lk.min_level * model.tank(tank).area
+
+
 def spill_link_name(model, tank: str) -> str:
     """A free link name for a spill from `tank`: spill_T1, spill_T1_, ..."""
     name = f"spill_{tank}"
@@ -169,6 +179,9 @@ class Spill(Overflow):
                                 min_level=rim_level))
         tk.overflow = OverflowSpec(to=tk.overflow.to, volume=rim_level * tk.area * (1 + SPILL_HEADROOM),
                                    fraction=tk.overflow.fraction, rest=tk.overflow.rest)
+
+    def onset_volume(self, model) -> float:
+        return spill_onset(model, self.component)
 
     @property
     def label(self) -> str:
@@ -293,8 +306,7 @@ class SpillOut(Overflow):
 
     def onset_volume(self, model) -> float:
         """Litres above which it acts, in a model it has edited: its link's crest."""
-        lk = next(x for x in reversed(model.links) if x.from_ == self.component and x.name.startswith("spill_"))
-        return lk.min_level * model.tank(self.component).area
+        return spill_onset(model, self.component)
 
     @property
     def label(self) -> str:

@@ -145,7 +145,7 @@ SWEEP = {
     # real-rig physics (issue #20): a flow law that is not Torricelli, a bent level sensor
     # (calibrated at 5 L), a pump dead zone, an overflow whose spill partly leaves the plant
     "flowlaw_pipe23": ("flow_law", "pipe23", (0.4, 0.55, 0.6)),     # q = c*|dh|**n, n instead of 0.5
-    "flowlaw_V2": ("flow_law", "V2", (0.4, 0.6, 0.7)),
+    "flowlaw_V2": ("flow_law", "V2", (0.4, 0.45, 0.6, 0.7)),
     "flowlaw_V1": ("flow_law", "V1", (0.6,)),
     "sensorchar_L2": ("sensor_characteristic", "L2", (0.9, 1.05, 1.1)),  # y = 5**(1-n)*V**n
     "sensorchar_L1": ("sensor_characteristic", "L1", (0.9, 1.05, 1.1)),   # T1 may sit at its rim

@@ -104,3 +104,32 @@ def test_split_overflow_fraction_is_fitted():
     # the joint refit frees the nominal coefficients: the rim trades against T1's scale (not
     # checked), the share that falls into T2 does not
     assert abs(p["fraction"] - 0.5) < 0.1, p
+
+
+def test_half_record_keeps_the_spill_no_fold_can_judge():
+    """The second half of the record: T2 reaches its sensor's clip once, in the last block, so no
+    fold of the blocked CV sees its spill act both in training and held out; the spill stays
+    (the pooled error had dropped it, and the model then stored water above the sensor's range
+    on the first half's long overflow: 0.36 V there). Its improved model transfers to the first
+    half (`--init-samples 50` protocol) within 0.25 V; the validation record is not used."""
+    from civic.diagnose import data
+    from civic.diagnose.fit import diagnose
+    from civic.diagnose.report import build_report, simulation_rmse
+    from civic.plant.model import PlantModel
+    from civic.plant.simulate import Recording
+
+    model = PlantModel.from_toml(MODEL)
+    rec = data.load(DATA, model)
+    n = len(rec.t)
+
+    def part(sl):
+        t = np.asarray(rec.t)[sl]
+        return Recording(t - t[0], {k: np.asarray(v)[sl] for k, v in rec.signals.items()}, None, "half")
+
+    first, second = part(slice(0, n // 2)), part(slice(n // 2, n))
+    d = diagnose(model, second, n_init=50)
+    rep = build_report(d, second, 50, 50)
+    judged = {r["finding"]: r["judged_by_folds"] for r in rep["fit"]["ablation"]["without"]}
+    assert judged.get("overflow(T2->outside)") == []
+    assert judged["sensor_characteristic(y_V)"] == "all"
+    assert simulation_rmse(d.model_improved, first, 50, 50)[0]["y_V"] < 0.25

@@ -98,15 +98,16 @@ def test_lost_messages_are_tolerated(tmp_path):
 
 
 @pytest.mark.parametrize("run,closure", [("drain_v075_error_r1", 0.55), ("drain_v075_warning_r1", 0.30),
-                                         ("drain_v075_normal_r1", 0.0)])
+                                         ("drain_v075_warning_r2", 0.30), ("drain_v075_normal_r1", 0.0),
+                                         ("drain_v075_normal_r4", 0.0)])
 def test_short_drain_tests(tmp_path, run, closure):
-    """18 s drain tests (traces/training): a half-closed VM1 is a V2 coefficient finding."""
+    """18 s drain tests (traces/training): a half-closed VM1 is a V2 coefficient finding, alone;
+    a normal run raises nothing (r2 and r4 used to get a sensor map on the still L1, exponent 2)."""
     out = tmp_path / "r.json"
     assert main(["diagnose", str(ROOT / "traces" / "training" / f"{run}.pcap"), "--json", str(out), "-q"]) == 0
     rep = json.loads(out.read_text())
     if closure == 0.0:
         assert rep["mismatch"] is False
         return
-    top = rep["findings"][0]
-    assert (top["mechanism"], top["component"]) == ("coefficient", "V2")
-    assert abs(top["parameters"]["factor"] - (1 - closure)) < 0.05
+    assert [(f["mechanism"], f["component"]) for f in rep["findings"]] == [("coefficient", "V2")]
+    assert abs(rep["findings"][0]["parameters"]["factor"] - (1 - closure)) < 0.05

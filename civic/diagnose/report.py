@@ -137,8 +137,15 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
             ev += diag.loc.regimes
             if intervals:
                 ev.append("active " + ", ".join(f"{a:g}-{b:g} s" for a, b in intervals[:4]))
+            judged = {r["finding"]: r["judged_by_folds"] for r in diag.ablation.get("without", [])}
+            if judged.get(mech.label) == []:
+                ev.append("kept unjudged: no fold of the cross-validation sees it act in both its training "
+                          "and held-out rows")
         else:
             ev += [r for r in diag.loc.regimes if r.split(":")[0] in (mech.component, params.get("to"))]
+            if mech.component in diag.loc.pinned:
+                ev.append(f"the calibration alone pinned {mech.component}'s coefficient at the datasheet "
+                          "spread's edge")
         ev.append(fitted.describe(fitted.values()) if fitted.params or fitted.fixed else "")
         findings.append({
             "mechanism": mech.name,

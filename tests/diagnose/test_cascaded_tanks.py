@@ -131,5 +131,7 @@ def test_half_record_keeps_the_spill_no_fold_can_judge():
     rep = build_report(d, second, 50, 50)
     judged = {r["finding"]: r["judged_by_folds"] for r in rep["fit"]["ablation"]["without"]}
     assert judged.get("overflow(T2->outside)") == []
+    spill = next(f for f in rep["findings"] if (f["mechanism"], f["component"]) == ("overflow", "T2"))
+    assert "kept unjudged" in spill["evidence"] and spill["intervals"]
     assert judged["sensor_characteristic(y_V)"] == "all"
     assert simulation_rmse(d.model_improved, first, 50, 50)[0]["y_V"] < 0.25

@@ -44,6 +44,11 @@ def test_pinned_coefficient_makes_its_tank_a_suspect(closed_loop_case, nominal):
     assert not d.loc.flagged and d.loc.pinned == ["V2"] and d.loc.suspect == ["T3"]
     assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("flow_law", "V2")]
     assert abs(d.final_all.mechanisms[0].values()["exponent"] - 0.45) < 0.02
+    from civic.diagnose.report import build_report
+
+    rep = build_report(d, closed_loop_case("flowlaw_V2_pinned"))
+    assert rep["localisation"]["pinned_coefficients"] == ["V2"]
+    assert "pinned V2's coefficient" in rep["findings"][0]["evidence"]
 
 
 def test_pinned_and_driven_tank(nominal):

@@ -12,8 +12,9 @@
    held-out SSE by `MIN_GAIN_FIRST` (the first) or `MIN_GAIN` (up to `MAX_FINDINGS`). Free run (a rig with unmeasured
    tanks): the coefficients are refitted jointly (factors `FREE_RUN_CAL`), every family's
    most general candidate is fitted together (multi-start), then backward elimination
-   on blocked k-fold cross-validation in time (`_backward`), whose last pass is the
-   ablation table.
+   on blocked k-fold cross-validation in time (`_backward`; a finding acting in some rows
+   only is judged by the folds that see it act in training and held out), whose last
+   pass is the ablation table.
 5. The selected model is refitted on all rows: the improved model (free run: multi-start,
    integrator checked).
 """
@@ -623,7 +624,8 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
     """Free run: every family's most general candidate fitted jointly (multi-start, all rows),
     then backward elimination on blocked cross-validation in time: each finding removed and
     the rest refitted per fold; while some removal does not raise the held-out free-run RMSE
-    by MIN_ABLATION, the least useful finding goes. The last pass is the ablation table;
+    (over the folds that can judge it, `_judging_folds`) by MIN_ABLATION, the least useful
+    finding goes. The last pass is the ablation table;
     findings are ordered by their contribution."""
     # a free rim is the flattest parameter: that candidate goes last, its extra starts spread the rim
     mechs = sorted(_general(candidates), key=_free_rim_last)

@@ -31,7 +31,7 @@ from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording
 
 from .compare import INVENTORY, INVENTORY_SPREAD, EquationError, SimulationError, fully_measured
-from .locate import Localisation, localise, noise_sigma, robust_sigma
+from .locate import Localisation, localise, noise_sigma, robust_sigma, suspect_everywhere
 from .mechanisms import CATALOGUE, Coefficient, Mechanism, coefficient_paths
 from .mechanisms.coefficient import CAL_SPREAD
 MIN_DBIC = 10.0
@@ -367,6 +367,9 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
     base = prob.evaluate([])
     Rb = prob.residuals(base.model, base.x0_extra)
     loc = localise(model, rec, engine, Rb * sigma, sigma, pinned=cal.pinned(base.cal))
+    if isinstance(engine, EquationError) and not engine.short and not loc.flagged:
+        # not on a short test run: its few held-out windows gave false findings before
+        suspect_everywhere(loc, model)
     diag = Diagnosis(model, base.model, base.model, engine, loc, base, base, sigma=sigma)
     diag.cal_report = cal.report(base.cal)
     if not loc.flagged and not loc.suspect:

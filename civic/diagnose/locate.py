@@ -305,6 +305,17 @@ def driven_tank(model: PlantModel, component: str) -> str | None:
     return None
 
 
+def suspect_everywhere(loc: Localisation, model: PlantModel) -> None:
+    """A long record whose columns the lack-of-fit score leaves unflagged may still hold an
+    effect that a fitted mechanism finds (a targeted test is sharper than the omnibus one):
+    every tank becomes a suspect, and only a finding significant on held-out data counts.
+    (V2 flow exponent 0.45 and pipe23 0.55, balances within 1.2x their noise: named on 4 of 5
+    seeds the score had left clean; ten clean runs with every tank a suspect: best candidate
+    held-out BIC -0.3, SSE -2 %, against the -10 and -5 % a finding needs.)"""
+    loc.suspect += [t for t in model.tank_names if t in loc.columns and t not in loc.suspect]
+    loc.tanks += [t for t in model.tank_names if t not in loc.tanks]
+
+
 def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np.ndarray,
              pinned: tuple = ()) -> Localisation:
     """`pinned`: components whose coefficient the calibration left at the datasheet spread's edge."""

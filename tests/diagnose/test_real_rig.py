@@ -38,10 +38,11 @@ def test_real_rig_effect_named(closed_loop_case, nominal, name, mech, comp, par,
 def test_pinned_coefficient_makes_its_tank_a_suspect(closed_loop_case, nominal):
     """V2's flow exponent 0.45 on a coefficient 1.4 % low (the bundled clean case's operation):
     the calibration averages the shape into V2's coefficient, pinned at the -5 % edge, and leaves
-    T3's balance near its noise, so no column is flagged. The pinned coefficient makes T3 a
-    suspect and the held-out data name the flow law, alone."""
+    T3's balance near its noise, so no column is flagged. The pinned coefficient makes T3 the
+    first suspect (then every tank: nothing is flagged) and the held-out data name the flow
+    law, alone."""
     d = diagnose(nominal, closed_loop_case("flowlaw_V2_pinned"))
-    assert not d.loc.flagged and d.loc.pinned == ["V2"] and d.loc.suspect == ["T3"]
+    assert not d.loc.flagged and d.loc.pinned == ["V2"] and d.loc.suspect[0] == "T3"
     assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("flow_law", "V2")]
     assert abs(d.final_all.mechanisms[0].values()["exponent"] - 0.45) < 0.02
     from civic.diagnose.report import build_report
@@ -49,6 +50,18 @@ def test_pinned_coefficient_makes_its_tank_a_suspect(closed_loop_case, nominal):
     rep = build_report(d, closed_loop_case("flowlaw_V2_pinned"))
     assert rep["localisation"]["pinned_coefficients"] == ["V2"]
     assert "pinned V2's coefficient" in rep["findings"][0]["evidence"]
+
+
+def test_unflagged_record_suspects_every_tank(closed_loop_case, nominal):
+    """pipe23's flow exponent 0.55 leaves every balance within its noise band (nothing flagged,
+    no coefficient pinned): every tank is a suspect and the held-out data name the flow law,
+    alone; a clean run stays clean with every tank a suspect."""
+    d = diagnose(nominal, closed_loop_case("flowlaw_pipe23_subtle", seed=5))
+    assert not d.loc.flagged and set(d.loc.suspect) == {"T1", "T2", "T3", "T4"}
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("flow_law", "pipe23")]
+    assert abs(d.final_all.mechanisms[0].values()["exponent"] - 0.55) < 0.02
+    clean = diagnose(nominal, closed_loop_case("clean"))
+    assert set(clean.loc.suspect) == {"T1", "T2", "T3", "T4"} and not clean.mismatch and not clean.findings
 
 
 def test_pinned_and_driven_tank(nominal):

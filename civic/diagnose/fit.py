@@ -598,11 +598,12 @@ def _judging_folds(prob: Problem, fit: FitResult) -> list[list[int] | None]:
     it, and the model then stored water above the sensor's range on the first half."""
     prob.engine.x0_extra = dict(fit.x0_extra)
     vol = prob.engine.simulate(fit.model)["volumes"][prob.engine.skip:]
+    folds = prob.folds()
     out = []
     for m in fit.mechanisms:
         rows = m.active_rows(fit.model, vol)
         out.append(None if rows is None else
-                   [f for f, mask in enumerate(prob.folds()) if (rows & mask).any() and (rows & ~mask).any()])
+                   [f for f, mask in enumerate(folds) if (rows & mask).any() and (rows & ~mask).any()])
     return out
 
 
@@ -653,8 +654,9 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
     full = min(fits, key=lambda r: r.train_sse + r.val_sse)
     diag.joint = full
     # physically negligible in the joint fit: not a finding, and no use refitting it per fold
-    mechs = [m for m in full.mechanisms if not m.negligible(m.values(), prob.model)]
-    judges = [j for m, j in zip(full.mechanisms, _judging_folds(prob, full)) if any(m is x for x in mechs)]
+    kept = [(m, j) for m, j in zip(full.mechanisms, _judging_folds(prob, full))
+            if not m.negligible(m.values(), prob.model)]
+    mechs, judges = [m for m, _ in kept], [j for _, j in kept]
     # per-fold refits start at the joint optimum: a short budget suffices
     start = dict(start_cal=full.cal, start_x0=full.x0_extra, budget=CV_BUDGET)
     current = prob.evaluate(mechs, **start)

@@ -104,6 +104,7 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
     model = diag.model_nominal
     eng = diag.engine
     findings = []
+    judged = {r["finding"]: r["judged_by_folds"] for r in diag.ablation.get("without", [])}
     for i, f in enumerate(diag.findings):
         mech = f["mechanism"]
         fitted = diag.final_all.mechanisms[i] if diag.final_all else f["fit"].mechanisms[-1]
@@ -137,7 +138,6 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
             ev += diag.loc.regimes
             if intervals:
                 ev.append("active " + ", ".join(f"{a:g}-{b:g} s" for a, b in intervals[:4]))
-            judged = {r["finding"]: r["judged_by_folds"] for r in diag.ablation.get("without", [])}
             if judged.get(mech.label) == []:
                 ev.append("kept unjudged: no fold of the cross-validation sees it act in both its training "
                           "and held-out rows")

@@ -53,6 +53,13 @@ def replay_events(pcap: Path, entries: Path, out: Path) -> list[dict]:
     return [json.loads(line) for line in open(out)]
 
 
+def result_line(out: str) -> str:
+    """The client's JSON result: node-opcua may log notices to stdout, before it or after it."""
+    lines = [line for line in out.splitlines() if line.startswith('{"changes"')]
+    assert lines, "the client printed no result:\n" + out
+    return lines[-1]
+
+
 def cell(ev: dict) -> str:
     return f"{ev['plant']}/{ev['monitor']}"
 
@@ -112,7 +119,7 @@ def test_a_subscribed_client_sees_every_change_in_order_and_the_model_counts(sta
             _, merr = monitor.communicate(timeout=60)
     assert monitor.returncode == 0, merr
     assert "0 dropped" in merr, merr
-    seen = json.loads(out.strip().splitlines()[-1])
+    seen = json.loads(result_line(out))
 
     # every change of the second pass, per (plant, monitor) in order, after the value the first pass left
     for c in cells:

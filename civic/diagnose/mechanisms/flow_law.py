@@ -13,6 +13,10 @@ from civic.plant.model import Link
 from .base import Mechanism
 
 EXPONENT_BOUNDS = (0.15, 2.0)
+# an exponent shift below this is no finding: over the 1:9 span of heads a tank sees, 0.02 bends the
+# flow by 4.5 %, within the coefficients' +-5 % datasheet spread at one head but not along the span.
+# (0.03 missed V2 n = 0.45 where the calibration's trade-off left the fit at 0.473)
+FLOW_LAW_MIN_SHIFT = 0.02
 
 
 class FlowLaw(Mechanism):
@@ -59,7 +63,7 @@ class FlowLaw(Mechanism):
     def negligible(self, p, model):
         lk = model.find("link", self.component)
         if "exponent" in p:
-            return abs(p["exponent"] - lk.exponent) < 0.03
+            return abs(p["exponent"] - lk.exponent) < FLOW_LAW_MIN_SHIFT
         return p["linear"] < 0.01 * lk.coeff
 
     def describe(self, p):

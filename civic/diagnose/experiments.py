@@ -37,12 +37,24 @@ def separating_experiment(a, b, model=None) -> str:
                 "does not), and a hold test with every valve and the pump shut (a leak drains a tank "
                 "that should stay still)")
     if "pump" in (ka, kb):
-        return ("a pump step test with V1 shut: commands 2 %, 5 %, 10 %, 30 %, 60 % for 20 s each into "
-                "T1 (a dead zone shows as no rise at the small commands, a head effect as a rate that "
-                "falls with T1's level, a gain as the same factor at every command)")
+        pump = next(m.component for m in (a, b) if _kind(m.name) == "pump")
+        tank, shut = _delivery(model, pump)
+        return (f"a pump step test{shut}: commands 2 %, 5 %, 10 %, 30 %, 60 % of the range for 20 s each "
+                f"into {tank} (a dead zone shows as no rise at the small commands, a head effect as a rate "
+                f"that falls with {tank}'s level, a gain as the same factor at every command)")
     if "overflow" in (ka, kb):
         return ("a fill test past the suspected rim with the tank below isolated (its valve shut): "
                 "the level at which the rise stops, and where the water goes, name the overflow")
     if "dead_time" in (ka, kb):
         return f"step tests of {comps} one at a time, the other actuators held: the delay of the first response"
     return f"step tests that move {comps} one at a time while the other actuators are held"
+
+
+def _delivery(model, pump: str) -> tuple[str, str]:
+    """The tank `pump` fills and, where its outflow has a valve, the words to shut it (the
+    four-tank plant's T1 and V1 without a model)."""
+    if model is None:
+        return "T1", " with V1 shut"
+    tank = model.find("pump", pump).to
+    valves = [lk.valve for lk in model.links if lk.from_ == tank and getattr(lk, "valve", None)]
+    return tank, f" with {' and '.join(valves)} shut" if valves else ""

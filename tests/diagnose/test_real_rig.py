@@ -4,6 +4,8 @@ partly leaves the plant are named on the equation-error path of the fully measur
 the only finding; the report carries the evidence (uncertainty, plot panel, alternatives)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from civic.diagnose.fit import diagnose
@@ -110,6 +112,16 @@ def test_alternative_experiment_names_the_separating_test():
     a = Leak("T1", {"c": 0.01}, {}, {"to": "T4"})
     b = Leak("T1", {"c": 0.01}, {}, {"to": "outside"})
     assert "inventory" in separating_experiment(a, b)
+    # worded for the rig: Cascaded Tanks' pump fills T1, whose outlet has no valve to shut
+    from civic.diagnose.mechanisms import PumpHead
+    from civic.plant.model import PlantModel
+
+    out1 = FlowLaw("out1", {"exponent": 0.56}, {"exponent": (0.15, 2)}, {"form": "exponent"})
+    head = PumpHead("P1", {"head_coeff": 0.02}, {})
+    ct = PlantModel.from_toml(Path(__file__).resolve().parents[2] / "configs" / "cascaded-tanks.toml")
+    text = separating_experiment(out1, head, ct)
+    assert "pump step test:" in text and "into T1" in text and "V1" not in text
+    assert "with V1 shut" in separating_experiment(out1, head)
 
 
 def test_alternatives_are_the_significant_candidates_within_alt_dbic():
@@ -131,3 +143,35 @@ def test_alternatives_are_the_significant_candidates_within_alt_dbic():
     alts = _alternatives(results, fl, results[0][1], ref)
     assert [a["mechanism"] for a in alts] == [vc]
     assert alts[0]["dbic_vs_chosen"] == ALT_DBIC / 2
+
+
+def test_free_run_swaps_list_what_explains_the_held_out_data_as_well():
+    """Free run: a dropped candidate put in the place of a weakly supported finding is an
+    alternative when the held-out RMSE stays within MIN_ABLATION of the chosen set's (and below
+    the set without the finding) and it is not negligible; best first, never the finding's own
+    family on its component."""
+    from civic.diagnose.fit import MIN_ABLATION, FitResult, _swaps
+    from civic.diagnose.mechanisms import FlowLaw, PumpDeadZone, PumpHead
+
+    chosen = FlowLaw("out1", {"exponent": 0.56}, {"exponent": (0.15, 2)}, {"form": "exponent"})
+    head = PumpHead("P1", {"head_coeff": 0.02}, {"head_coeff": (0.0, 0.2)})
+    zone = PumpDeadZone("P1", {"threshold": 0.3}, {"threshold": (0.0, 2.0)})
+    tiny = PumpHead("P2", {"head_coeff": 0.0}, {"head_coeff": (0.0, 0.2)})
+    variant = FlowLaw("out1", {"exponent": 0.6, "linear": 0.1}, {}, {"form": "linear"})
+
+    def res(rmse, mech):
+        return FitResult([mech], None, {}, 0.0, rmse ** 2, 10 * rmse, 1, None, val_rmse=rmse)
+
+    held_out = {head.label: 0.1580, zone.label: 0.1600, tiny.label: 0.1570, variant.label: 0.1500}
+
+    class Stub:
+        model = None
+
+        def evaluate(self, mechs, **start):
+            return res(held_out[mechs[-1].label], mechs[-1])
+
+    current, without = res(0.1570, chosen), res(0.1593, None)
+    alts = _swaps(Stub(), chosen, [], current, without, [zone, variant, tiny, head], {})
+    assert [a["mechanism"] for a in alts] == [head]         # zone: 1.9 % worse; tiny: negligible
+    assert 0.1580 <= current.val_rmse * (1 + MIN_ABLATION)
+    assert alts[0]["dbic_vs_chosen"] > 0 and alts[0]["gain"] > 0

@@ -56,5 +56,5 @@ def _delivery(model, pump: str) -> tuple[str, str]:
     if model is None:
         return "T1", " with V1 shut"
     tank = model.find("pump", pump).to
-    valves = [lk.valve for lk in model.links if lk.from_ == tank and getattr(lk, "valve", None)]
+    valves = [lk.valve for lk in model.links if lk.from_ == tank and lk.valve]
     return tank, f" with {' and '.join(valves)} shut" if valves else ""

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from scapy.fields import IntField, ShortField
 from scapy.layers.inet import UDP
-from scapy.packet import Packet, bind_layers, split_layers
+from scapy.packet import Packet, bind_layers
 
 from civic.wire import DEFAULT_UDP_PORT
 
@@ -18,16 +18,6 @@ class PlantMessage(Packet):
         ShortField("p1", 0), ShortField("v1", 0), ShortField("v2", 0),
         ShortField("verdict", 0),
     ]
-
-
-_bound = [DEFAULT_UDP_PORT]
-
-
-def bind_port(port: int) -> None:
-    """Dissect UDP datagrams to `port` as plant messages (instead of the previous port)."""
-    split_layers(UDP, PlantMessage, dport=_bound[0])
-    bind_layers(UDP, PlantMessage, dport=port)
-    _bound[0] = port
 
 
 bind_layers(UDP, PlantMessage, dport=DEFAULT_UDP_PORT)

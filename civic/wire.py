@@ -26,7 +26,6 @@ ETH_LEN, IPV4_LEN = 14, 20
 FRAME_LEN = ETH_LEN + IPV4_LEN + UDP_LEN  # 62 bytes: a plant message frame
 
 # byte offsets inside an Ethernet frame carrying a plant message
-OFF_ETHERTYPE = 12
 OFF_IP = ETH_LEN
 OFF_UDP = ETH_LEN + IPV4_LEN
 OFF_UDP_CSUM = OFF_UDP + 6
@@ -34,7 +33,6 @@ OFF_PAYLOAD = OFF_UDP + 8
 OFF_VERDICT = OFF_PAYLOAD + 18
 
 SIGNALS = ("l1", "l2", "l3", "l4", "p1", "v1", "v2")
-FIELD_MAX = {"l1": 65535, "l2": 65535, "l3": 65535, "l4": 65535, "p1": 1000, "v1": 1000, "v2": 1000}
 VERDICT_NAMES = {0: "not evaluated", 1: "normal", 2: "warning", 3: "error"}
 CLASS_CODES = {"normal": 1, "warning": 2, "error": 3}
 MAX_MONITORS = 8

@@ -59,7 +59,7 @@ def run(args) -> int:
     n_init = args.init_samples if args.init_samples is not None else (1 if full else 50)
     if not 1 <= n_init < len(rec.t) // 2:
         raise CivicError(f"--init-samples must lie in 1..{len(rec.t) // 2 - 1}")
-    with _Progress(len(rec.t) * model.dt) as prog:
+    with _Progress() as prog:
         diag = diagnose(model, rec, progress=prog, window_s=args.window, n_init=n_init)
     rep = build_report(diag, rec, n_init=n_init, skip=0 if full else n_init)
     if not args.quiet:
@@ -82,7 +82,7 @@ def run(args) -> int:
 class _Progress:
     """A rich progress bar on stderr for long runs on a terminal; silent otherwise."""
 
-    def __init__(self, duration_s: float):
+    def __init__(self):
         self.on = sys.stderr.isatty()
 
     def __enter__(self):

@@ -179,7 +179,6 @@ class Problem:
             engine.x0_extra = {}
             self.x0_guess = {t: v for t, v in engine.x0(model).items() if t in self.unmeasured}
         self.val = ~engine.train
-        self.n_eval = 0
         # free-run fits are 100x dearer per evaluation: parameters to 1e-4 are plenty there
         self.xtol = 1e-4 if isinstance(engine, SimulationError) else 1e-6
 
@@ -192,7 +191,6 @@ class Problem:
         return m
 
     def residuals(self, model: PlantModel, x0_extra: dict | None = None) -> np.ndarray:
-        self.n_eval += 1
         if self.unmeasured:
             self.engine.x0_extra = dict(x0_extra or {})
         R = self.engine.residuals(model)

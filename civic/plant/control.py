@@ -56,8 +56,8 @@ class _Plant4:
                         lk.law == "orifice", lk.exponent, lk.min_level, idx[lk.from_], idx.get(lk.to))
                        for lk in m.links]
 
-    def rhs3(self, x3, u3, V4=30.0):
-        """dV/dt of T1..T3 (valves at their commands, no dead time); T4 held at V4."""
+    def rhs3(self, x3, u3):
+        """dV/dt of T1..T3 (valves at their commands, no dead time); T4 held at 30 L (the reservoir barely moves the pump)."""
         V = list(self._base)
         for j, i in enumerate(self.tidx):
             V[i] = float(x3[j])
@@ -190,7 +190,6 @@ class LinearMPC:
         self.dist_gain = dist_gain
         self._lo = np.zeros(3 * N)
         self._pred = None
-        self._sp = None
         self._target = None
 
     def reset_actuators(self, u_applied):
@@ -372,7 +371,6 @@ class ClosedLoopResult:
     fields: dict                  # wire fields
     volumes: np.ndarray
     operation: list = field(default_factory=list)   # (t, label, value) like truth.json
-    solve_time: float = 0.0
 
 
 class Stepper:
@@ -413,8 +411,6 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     coefficients (same structure, e.g. a manual valve closed mid-run).
     `pi_gains` = (kp, ti) of the PI loops (default PIController's).
     """
-    import time as _time
-
     plant = _Plant4(model)
     rng = np.random.default_rng(seed)
     dt = model.dt
@@ -463,7 +459,6 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     phase, phase_t0, test = "setpoints", 0.0, None
     log = [(0.0, "setpoints", [float(v) for v in sp])]
     x = np.array(x0v, float)
-    t_solve = 0.0
     last_u = np.asarray(us, float)
     for k in range(n):
         t = k * dt
@@ -514,7 +509,6 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
                         sp = np.array(random_setpoint(rng), float)
                     log.append((round(t, 1), "setpoints", [float(v) for v in sp]))
         # commands
-        t0 = _time.perf_counter()
         if phase == "setpoints":
             u = ctrl(y3, sp)
         elif phase == "prep":
@@ -531,7 +525,6 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
         else:  # run
             u = np.array([0.0, 0.0, 1.0]) if test == "drain_test" else np.array([1.0, 0.0, 0.0])
             ctrl.apply(u)
-        t_solve += _time.perf_counter() - t0
         u = np.round(np.asarray(u) * 1000.0) / 1000.0       # 0.1 % command resolution
         last_u = u
         u_full[iin] = u
@@ -554,4 +547,4 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     for j, name in enumerate(model.input_names):
         sigs[name] = Ucmd[:, j]
     t = np.arange(n) * dt
-    return ClosedLoopResult(t, sigs, to_wire(model, sigs), vol, log, t_solve)
+    return ClosedLoopResult(t, sigs, to_wire(model, sigs), vol, log)

@@ -404,7 +404,7 @@ class PlantModel:
         """Tank indices ordered so that a tank spills before the tank it spills into."""
         order, state = [], {}
 
-        def visit(i, depth=0):
+        def visit(i):
             if state.get(i) == 1:
                 raise CivicError(f"{where}: overflow cycle through tank {self.tanks[i].name}")
             if state.get(i) == 2:

@@ -111,9 +111,6 @@ class CompiledModel:
             nsteps = max(1, math.ceil(m.substeps * length - 1e-9))
             segs.append((bounds[j], length * m.dt / nsteps, nsteps))
         self._segs = segs
-        self.uses_outside = any(p.from_ == OUTSIDE or p.to == OUTSIDE for p in m.pumps) or \
-            any(lk.to == OUTSIDE for lk in m.links) or \
-            any(t.overflow is not None and OUTSIDE in (t.overflow.to, t.overflow.rest) for t in m.tanks)
         self._fn = {}
 
     # ---- code generation --------------------------------------------------------------
@@ -335,7 +332,6 @@ class CompiledModel:
             ns = {"np": np, "sqrt": math.sqrt, "exp": math.exp}
             exec(compile(src, f"<plant {self.model.name} {'batch' if batch else 'scalar'}>", "exec"), ns)
             self._fn[batch] = ns["_run"]
-            self._src = src
         return self._fn[batch]
 
     def flows_function(self):

@@ -23,6 +23,8 @@ concealed mechanism of the catalogue (one to three magnitudes, small but signifi
 prints per case and the rates: clean cases without alarm, and cases where the first
 finding names the right mechanism and component and nothing else is found, counting only cases where the
 mechanism was active (a rim or a clip the levels never reach changes nothing).
+CIVIC_BENCH_CONTROLLER=pi runs the sweep under the PI loops instead of the MPC (the
+supervisor's setpoints and tests are the same).
 """
 from __future__ import annotations
 
@@ -228,7 +230,8 @@ def sweep_case(job) -> dict:
 
         truth = json.loads((ROOT / "traces" / "diagnose" / "example_leak_t3" / "truth.json").read_text())
         schedule = schedule_from_operation(truth["operation"])
-    res = run_closed_loop(plant, 600.0, controller="mpc", seed=seed, noise=True, controller_model=nominal,
+    res = run_closed_loop(plant, 600.0, controller=os.environ.get("CIVIC_BENCH_CONTROLLER", "mpc"), seed=seed,
+                          noise=True, controller_model=nominal,
                           schedule=schedule)
     d = diagnose(nominal, Recording(res.t, res.signals, res.fields, case))
     want = SWEEP[case][:2]
@@ -407,7 +410,8 @@ def transfer_structures(names=None, n_init: int = 50) -> dict:
 
     from civic.diagnose import data
     from civic.diagnose import fit as F
-    from civic.diagnose.locate import localise, noise_sigma
+    from civic.diagnose.locate import localise
+    from civic.diagnose.noise import noise_sigma
     from civic.diagnose.mechanisms import CATALOGUE, Coefficient
     from civic.diagnose.report import simulation_rmse
     from civic.plant.model import PlantModel

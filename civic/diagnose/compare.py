@@ -26,13 +26,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
+from scipy.ndimage import binary_closing, uniform_filter1d
 from scipy.signal import lfilter
 
 from civic.errors import CivicError
 from civic.plant.model import OUTSIDE, PlantModel
 from civic.plant.simulate import Recording, initial_state, inputs_matrix, measured_state, simulate
 from civic.plant.simulate import flows as plant_flows
+
+from .noise import noise_sigma
 
 N_BLOCKS = 6          # interleaved train / held-out blocks (even: train, odd: held out)
 INVENTORY = "inventory"   # equation-error column: measured sum of the volumes vs the stated total
@@ -43,6 +45,12 @@ INVENTORY_SPREAD = 0.005
 # L4) from a fill this far off the stated total: flagged, and such an offset a finding,
 # only beyond INVENTORY_BAND x its sigma (fills within 0.25 % leave a 0.1 L median)
 INVENTORY_BAND = 1.25
+RIM_TOL = 0.03       # L: a measured volume this close below the rim counts as at the rim...
+# ...or within this many sigmas of the smoothed reading's noise, if more: a plateau's top (the
+# rim the diagnosis gives a tank it sees held) is the 0.999 quantile of the smoothed readings,
+# ~3.1 sigmas above where the tank sits, and the readings of that stay reach ~3 sigmas below it
+RIM_SIGMAS = 6.5
+RIM_GAP = 7          # samples: shorter dips below that band are noise, not the tank leaving its rim
 
 
 def holdout_mask(n: int, blocks: int = N_BLOCKS) -> np.ndarray:
@@ -69,6 +77,12 @@ def _zoh_average(u: np.ndarray, delay: float, dt: float) -> np.ndarray:
         return np.where(x < 0, u[0] * x, inside)
 
     return (c(b) - c(a)) / dt
+
+
+def _closed(mask: np.ndarray, width: int) -> np.ndarray:
+    """`mask` with its gaps shorter than `width` samples filled (edges kept as they are)."""
+    pad = width // 2
+    return binary_closing(np.pad(mask, pad, mode="edge"), structure=np.ones(width, bool))[pad:-pad]
 
 
 class EquationError:
@@ -103,6 +117,15 @@ class EquationError:
         self.smooth = smooth
         self.raw = {k: np.asarray(v, float) for k, v in rec.signals.items()}
         self.ys = {s: uniform_filter1d(self.raw[s], smooth, mode="nearest") for s in sensed.values()}
+        # a tank at its rim reads the rim +- the smoothed noise; the rim (a plateau's top, or a
+        # fitted one) may sit a few of those sigmas above the readings: every sample within
+        # RIM_SIGMAS of them counts as at the rim, and short dips below are closed
+        self.rim_tol = {}
+        for tk in model.tanks:
+            s = model.find("sensor", sensed[tk.name])
+            per_reading = (tk.area if s.quantity == "level" else 1.0) / max(abs(s.gain), 1e-9)
+            sig = noise_sigma(self.raw[s.name]) / math.sqrt(smooth) * per_reading
+            self.rim_tol[tk.name] = max(RIM_TOL, RIM_SIGMAS * sig)
         self.U = inputs_matrix(model, {k: rec.signals[k] for k in model.input_names}, n)
         self.input_index = {k: i for i, k in enumerate(model.input_names)}
         k0 = np.arange(self.nwin) * self.W
@@ -184,14 +207,12 @@ class EquationError:
             tk = model.tanks[i]
             rim = tk.rim_volume()
             pre = V[:-1, i] + F[:, i]
-            at_rim = V[1:, i] >= rim - self.rim_tol
+            at_rim = _closed(V[1:, i] >= rim - self.rim_tol[tk.name], RIM_GAP)
             # at the rim every net inflow spills (measured noise is not rectified into spill)
             s = np.where(at_rim, np.maximum(F[:, i], 0.0), np.maximum(pre - rim, 0.0))
             for dest, share in tk.overflow.targets():
                 move(tk.name, dest, share * s)
         return F, out
-
-    rim_tol = 0.03  # L: a measured level this close to the rim counts as "at the rim"
 
     def residuals(self, model: PlantModel) -> np.ndarray:
         V, cens = self.volumes(model)

@@ -31,7 +31,8 @@ from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording
 
 from .compare import INVENTORY, INVENTORY_SPREAD, EquationError, SimulationError, fully_measured
-from .locate import Localisation, localise, noise_sigma, robust_sigma, suspect_everywhere
+from .locate import Localisation, localise, suspect_everywhere
+from .noise import noise_sigma, robust_sigma
 from .mechanisms import CATALOGUE, Coefficient, Mechanism, coefficient_paths
 from .mechanisms.coefficient import CAL_SPREAD
 MIN_DBIC = 10.0

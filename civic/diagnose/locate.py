@@ -23,8 +23,9 @@ from scipy.ndimage import binary_closing, uniform_filter1d
 from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording
 
-from .compare import INVENTORY, INVENTORY_BAND
+from .compare import INVENTORY, INVENTORY_BAND, RIM_TOL
 from .mechanisms.base import tanks_touching
+from .noise import noise_sigma
 
 BLOCK = 6          # rows averaged per block in the lack-of-fit statistic
 FLAG_RATIO = 2.0   # block-mean chi-square / expected above which a column is flagged
@@ -66,23 +67,10 @@ class Localisation:
         return merge([iv for c in self.flagged for iv in self.intervals.get(c, [])])
 
 
-def robust_sigma(x: np.ndarray) -> float:
-    x = np.asarray(x, float)
-    if x.size == 0:
-        return 1.0
-    return float(1.4826 * np.median(np.abs(x - np.median(x)))) or float(np.std(x)) or 1e-9
-
-
 def median_nonzero(r: np.ndarray) -> float:
     """Median of the rows that carry information (0 marks a row without any)."""
     used = r[r != 0.0]
     return float(np.median(used)) if used.size else 0.0
-
-
-def noise_sigma(x: np.ndarray) -> float:
-    """Noise level of a signal from its second differences (robust to slow trends)."""
-    d2 = np.diff(np.asarray(x, float), 2)
-    return robust_sigma(d2) / np.sqrt(6.0) if d2.size else 1e-9
 
 
 def merge(intervals, gap: float = 0.0) -> list[list[float]]:
@@ -165,9 +153,6 @@ def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict,
                 tanks[s.tank] = vol
                 readings[s.name] = float(np.median(ys[at]))
     return tanks, sensors, readings
-
-
-RIM_TOL = 0.03     # L: a (smoothed) measured volume this close below the rim counts as at the rim
 
 
 def _rim_masks(model: PlantModel, rec: Recording) -> dict:

@@ -9,7 +9,9 @@
 4. **Selection** on held-out rows. Equation error (every tank measured): forward
    selection (`_forward`), each candidate fitted jointly with the calibration; it joins
    if it lowers the held-out BIC (`N log(SSE/N) + k log N`) by `MIN_DBIC` and the
-   held-out SSE by `MIN_GAIN_FIRST` (the first) or `MIN_GAIN` (up to `MAX_FINDINGS`). Free run (a rig with unmeasured
+   held-out SSE by `MIN_GAIN_FIRST` (the first) or `MIN_GAIN` (up to `MAX_FINDINGS`); one the
+   held-out blocks never see act (a sensor stuck, a rim reached, in training blocks only) is
+   judged with the blocks swapped, against the reference refitted the same way. Free run (a rig with unmeasured
    tanks): the coefficients are refitted jointly (factors `FREE_RUN_CAL`), every family's
    most general candidate is fitted together (multi-start), then backward elimination
    on blocked k-fold cross-validation in time (`_backward`; a finding acting in some rows
@@ -300,10 +302,11 @@ class Problem:
         return [(block != b) | init for b in range(k - 1, -1, -1)]
 
     def evaluate(self, mechs: list[Mechanism], start_cal=None, start_x0=None, starts=None,
-                 budget: int = 40) -> FitResult:
-        """Fit on each fold's training rows; held-out SSE/BIC over all folds' held-out rows."""
+                 budget: int = 40, folds: list | None = None) -> FitResult:
+        """Fit on each fold's training rows; held-out SSE/BIC over all folds' held-out rows
+        (`folds`: training masks, default `self.folds()`)."""
         first, held, params = None, [], []
-        for mask in self.folds():
+        for mask in (self.folds() if folds is None else folds):
             res = self.fit(mechs, rows=mask, start_cal=start_cal, start_x0=start_x0, starts=starts, budget=budget)
             R = self.residuals(res.model, res.x0_extra)
             held.append(R[~mask])
@@ -320,6 +323,16 @@ class Problem:
         first.val_rmse = float(np.sqrt(np.mean((Rv * self.sigma) ** 2)))
         first.val_bic = self.bic(Rv, first.k)
         return first
+
+    def unseen_held_out(self, res: FitResult) -> bool:
+        """True when the last mechanism of `res` changes no held-out row of a long equation-error
+        record (it acts in training blocks only): its held-out evidence is void there."""
+        if not isinstance(self.engine, EquationError) or len(self.folds()) > 1 or not res.mechanisms:
+            return False
+        others = res.mechanisms[:-1]
+        without = self.build(others, [m.x0 for m in others], res.cal)
+        return bool(np.allclose(self.residuals(res.model)[self.val], self.residuals(without)[self.val],
+                                rtol=0.0, atol=1e-9))
 
     def bic(self, Rv: np.ndarray, k: int) -> float:
         N = self.n_eff(Rv)
@@ -430,8 +443,9 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
 
 def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: FitResult, progress=None):
     """Forward selection on held-out data (up to MAX_FINDINGS): each round the candidate with
-    the lowest held-out BIC joins if `significant`; later rounds only try what helped on its
-    own in the first."""
+    the lowest held-out BIC (relative to its reference) joins if `significant`; later rounds
+    only try what helped on its own in the first. A candidate the held-out blocks never see
+    act is judged with the blocks swapped, against the current model refitted the same way."""
     model = prob.model
     current, chosen = base, []
     planned = len(candidates)
@@ -439,7 +453,8 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
         progress(0, planned, "candidates")
     done = 0
     for round_ in range(MAX_FINDINGS):
-        results = []
+        results = []          # (candidate, its fit, (fit judged, reference judged, how))
+        swapped = None        # the current model evaluated with the blocks swapped (lazily)
         for cand in candidates:
             if any(c.component == cand.component for c in chosen):
                 continue     # one finding per component: a second one on it (an offset on top of a
@@ -447,34 +462,42 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
             try:
                 res = prob.evaluate(chosen + [cand], start_cal=current.cal, start_x0=current.x0_extra,
                                     starts=_starts(cand))
+                judged = (res, current, "")
+                if prob.unseen_held_out(res):
+                    flip = [~prob.engine.train]
+                    swapped = swapped or prob.evaluate(chosen, start_cal=current.cal, folds=flip)
+                    judged = (prob.evaluate(chosen + [cand], start_cal=current.cal, starts=_starts(cand),
+                                            folds=flip), swapped, "blocks swapped")
             except RuntimeError:
                 continue
             finally:
                 done += 1
                 if progress:
                     progress(done, planned, cand.label)
-            results.append((cand, res))
+            results.append((cand, res, judged))
             if round_ == 0:
-                diag.tried.append({"candidate": cand.label, "val_bic": res.val_bic,
-                                   "dbic": res.val_bic - base.val_bic,
-                                   "val_gain": 1 - res.val_sse / max(base.val_sse, 1e-300),
-                                   "fold_sse": list(res.fold_sse), "base_fold_sse": list(base.fold_sse),
-                                   "parameters": res.mechanisms[-1].report_parameters()})
+                r, ref, how = judged
+                diag.tried.append({"candidate": cand.label, "val_bic": r.val_bic,
+                                   "dbic": r.val_bic - ref.val_bic,
+                                   "val_gain": 1 - r.val_sse / max(ref.val_sse, 1e-300),
+                                   "fold_sse": list(r.fold_sse), "base_fold_sse": list(ref.fold_sse),
+                                   "parameters": res.mechanisms[-1].report_parameters(),
+                                   **({"held_out": how} if how else {})})
         # physically negligible effects are not findings, however significant statistically
-        results = [(c, r) for c, r in results
-                   if not r.mechanisms[-1].negligible(r.mechanisms[-1].values(), model)]
+        results = [x for x in results if not x[1].mechanisms[-1].negligible(x[1].mechanisms[-1].values(), model)]
         if not results:
             break
-        cand, res = min(results, key=lambda cr: cr[1].val_bic)
+        cand, res, (r, ref, how) = min(results, key=lambda x: x[2][0].val_bic - x[2][1].val_bic)
         min_gain = MIN_GAIN if chosen else MIN_GAIN_FIRST
-        ok, dbic, gain = significant(res, current, min_gain)
+        ok, dbic, gain = significant(r, ref, min_gain)
         if not ok:
             break
-        alternatives = _alternatives(results, cand, res, current, min_gain)
+        alternatives = _alternatives(results, cand, dbic, min_gain)
         chosen.append(res.mechanisms[-1])
         chosen[:-1] = res.mechanisms[:-1]
         diag.findings.append({"mechanism": cand, "fit": res, "dbic": dbic, "gain": gain,
-                              "prev": current, "alternatives": alternatives})
+                              "prev": current, "alternatives": alternatives,
+                              **({"held_out": how} if how else {})})
         current = res
         # later rounds: only what helped on its own in the first round (or shares its component)
         helped = {t["candidate"] for t in diag.tried if t["dbic"] < 0}
@@ -483,20 +506,18 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
     return chosen, current
 
 
-def _alternatives(results, cand: Mechanism, res: FitResult, current: FitResult,
-                  min_gain: float = MIN_GAIN) -> list[dict]:
+def _alternatives(results, cand: Mechanism, dbic: float, min_gain: float = MIN_GAIN) -> list[dict]:
     """Candidates the held-out data does not separate from the chosen one: significant on their
-    own against the same reference, and within ALT_DBIC of the chosen one's held-out BIC (best
-    first). They are reported, never added as findings; a variant of the chosen mechanism on the
-    same component is not an alternative explanation."""
+    own against their reference, and within ALT_DBIC of the chosen one's held-out BIC gain
+    (`dbic`; best first). They are reported, never added as findings; a variant of the chosen
+    mechanism on the same component is not an alternative explanation."""
     out = []
-    for c, r in sorted(results, key=lambda cr: cr[1].val_bic):
-        if (c.name, c.component) == (cand.name, cand.component) or r.val_bic - res.val_bic >= ALT_DBIC:
+    for c, res, (r, ref, _) in sorted(results, key=lambda x: x[2][0].val_bic - x[2][1].val_bic):
+        ok, d, gain = significant(r, ref, min_gain)
+        if (c.name, c.component) == (cand.name, cand.component) or d - dbic >= ALT_DBIC:
             continue
-        ok, dbic, gain = significant(r, current, min_gain)
         if ok:
-            out.append({"mechanism": c, "fit": r, "dbic": dbic, "gain": gain,
-                        "dbic_vs_chosen": r.val_bic - res.val_bic})
+            out.append({"mechanism": c, "fit": res, "dbic": d, "gain": gain, "dbic_vs_chosen": d - dbic})
     return out[:MAX_ALTERNATIVES]
 
 

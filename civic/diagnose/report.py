@@ -114,6 +114,9 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         intervals = _finding_intervals(diag, f["prev"], f["fit"], mech)
         ev = [f"held-out {eng.kind} error: BIC {f['dbic']:+.1f}, weighted SSE {-100 * f['gain']:+.0f} % "
               f"vs the calibrated model without it"]
+        if f.get("held_out"):
+            ev[0] += (f" ({f['held_out']}: it acts in the training blocks only, so the model with and "
+                      "without it were refitted on the held-out blocks and judged on the training ones)")
         if isinstance(eng, EquationError):
             Rp = _resid(diag, f["prev"])            # the model without this finding
             tanks = [mech.component] if mech.component in eng.columns else []
@@ -156,6 +159,8 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
             "heldout_dbic": round(f["dbic"], 2),
             "heldout_sse_reduction": round(f["gain"], 4),
         })
+        if f.get("held_out"):
+            findings[-1]["heldout_split"] = "swapped"
         if "heldout_rmse_without" in f:
             findings[-1]["heldout_rmse_without"] = round(f["heldout_rmse_without"], 6)
         findings[-1]["heldout_error"] = _heldout_error(f["fit"])

@@ -68,6 +68,12 @@ def make_fault(nominal, name):
                         ("link.V2.coeff", 1.0108)):
             m.set(path, float(nominal.get(path)) * f)
         m.find("link", "pipe23").exponent = 0.55
+    elif name == "saturation_L1_training_only":
+        # the sweep's seed-13 plant: under seed 13's setpoints T1 passes 9 L once, in a training block
+        for path, f in (("pump.P1.gain", 0.9848), ("link.V1.coeff", 0.9711), ("link.pipe23.coeff", 0.9644),
+                        ("link.V2.coeff", 0.9781)):
+            m.set(path, float(nominal.get(path)) * f)
+        m.find("sensor", "L1").max = 9.0
     elif name == "flowlaw_V2_pinned":
         # a milder exponent on a coefficient 1.4 % low: calibrated, V2's coefficient pins at -5 %
         link = m.find("link", "V2")

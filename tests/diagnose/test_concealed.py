@@ -127,3 +127,24 @@ def test_heavy_tails_make_a_suspect(closed_loop_case, nominal):
     s = loc.scores["T3"]
     assert s["rms"] > TAIL_RMS and s["peak"] < 10 and s["ratio"] < 2
     assert loc.flagged == [] and loc.suspect == ["T3"] and "T3" in loc.tanks
+
+
+def test_effect_the_held_out_blocks_never_see_is_judged_with_the_blocks_swapped(closed_loop_case, nominal):
+    """L1 stuck at 9.0 for 53 s, all of it in training blocks: the held-out blocks cannot judge
+    it (4.6 % lower SSE there, from the calibration alone), so the model with and without it
+    are refitted on the held-out blocks and judged on the training ones."""
+    import numpy as np
+
+    rec = closed_loop_case("saturation_L1_training_only", 13)
+    d = diagnose(nominal, rec)
+    stuck = np.asarray(rec.signals["L1"]) >= 9.0
+    rows = (np.arange(len(stuck)) // d.engine.W)[stuck]
+    assert stuck.sum() > 300 and d.engine.train[rows[rows < len(d.engine.train)]].all()
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("sensor_saturation", "L1")]
+    top = d.findings[0]
+    assert top["held_out"] == "blocks swapped"
+    assert top["dbic"] < -10 and top["gain"] > 0.3
+    from civic.diagnose.report import build_report
+
+    rep = build_report(d, rec)["findings"][0]
+    assert rep["heldout_split"] == "swapped" and "blocks swapped" in rep["evidence"]

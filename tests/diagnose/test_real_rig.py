@@ -138,11 +138,17 @@ def test_alternatives_are_the_significant_candidates_within_alt_dbic():
     vc = ValveCharacteristic("V2", {"n": 1.2}, {"n": (0.25, 4)})
     lk = Leak("T3", {"c": 0.01}, {}, {"to": "T4"})
     weak = Leak("T2", {"c": 0.01}, {}, {"to": "T4"})
-    results = [(fl, res(-100.0, 40.0)), (vc, res(-100.0 + ALT_DBIC / 2, 42.0)),
-               (lk, res(-100.0 + 2 * ALT_DBIC, 50.0)), (weak, res(-5.0, 95.0))]
-    alts = _alternatives(results, fl, results[0][1], ref)
+    fits = [(fl, res(-100.0, 40.0)), (vc, res(-100.0 + ALT_DBIC / 2, 42.0)),
+            (lk, res(-100.0 + 2 * ALT_DBIC, 50.0)), (weak, res(-5.0, 95.0))]
+    results = [(c, r, (r, ref, "")) for c, r in fits]
+    alts = _alternatives(results, fl, -100.0)
     assert [a["mechanism"] for a in alts] == [vc]
     assert alts[0]["dbic_vs_chosen"] == ALT_DBIC / 2
+    # one judged with the blocks swapped counts by its gain over its own reference
+    swapped_ref = res(50.0, 100.0)
+    results.append((lk, fits[2][1], (res(50.0 - 100.0 + ALT_DBIC / 4, 44.0), swapped_ref, "blocks swapped")))
+    alts = _alternatives(results, fl, -100.0)
+    assert [a["mechanism"] for a in alts] == [lk, vc]
 
 
 def test_free_run_swaps_list_what_explains_the_held_out_data_as_well():

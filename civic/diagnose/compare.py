@@ -46,10 +46,12 @@ INVENTORY_SPREAD = 0.005
 # only beyond INVENTORY_BAND x its sigma (fills within 0.25 % leave a 0.1 L median)
 INVENTORY_BAND = 1.25
 RIM_TOL = 0.03       # L: a measured volume this close below the rim counts as at the rim...
-# ...or within this many sigmas of the smoothed reading's noise, if more: a plateau's top (the
-# rim the diagnosis gives a tank it sees held) is the 0.999 quantile of the smoothed readings,
-# ~3.1 sigmas above where the tank sits, and the readings of that stay reach ~3 sigmas below it
-RIM_SIGMAS = 6.5
+# ...or within this many sigmas of the smoothed reading's noise, if more. With the gaps closed
+# this keeps every sample of a 100 s stay under a rim at the plateau's top (the rim the diagnosis
+# gives a tank it sees held: 2.4 sigmas above the readings there); 6.5 sigmas also covered a 300 s
+# stay's top (3.1 sigmas) but spilled early enough on a tank nearing its datasheet rim to bend a
+# fitted sensor map (L1 n = 1.1 fitted 1.155)
+RIM_SIGMAS = 4.0
 RIM_GAP = 7          # samples: shorter dips below that band are noise, not the tank leaving its rim
 
 

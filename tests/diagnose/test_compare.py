@@ -95,25 +95,22 @@ def test_multiple_shooting_restarts_from_measurement(nominal):
 
 
 def test_spill_is_modelled_on_every_noisy_sample_at_the_rim(nominal):
-    """A tank held at its rim by a strong inflow reads the rim +- noise; the rim the diagnosis
-    uses is a plateau's top, a few smoothed sigmas above. Every sample of that stay must still
-    spill in the equation error (a dip read as 'below the rim' keeps the inflow in the tank)."""
+    """A tank held at its rim by a strong inflow reads the rim +- noise. Every sample of that
+    stay must spill in the equation error (a dip read as 'below the rim' keeps the inflow in
+    the tank), whatever the sensor's noise: here twice the datasheet's, where a fixed 0.03 L
+    band missed one sample in twenty."""
     true = nominal.copy()
     true.tank("T1").overflow = Overflow(to="T4", volume=8.0)
+    true.find("sensor", "L1").noise_sigma *= 2.0
     n = 3000
     t = np.arange(n) * true.dt
     u = {"p1": np.full(n, 0.9), "v1": np.full(n, 0.3), "v2": np.full(n, 0.4)}
     sim = simulate(true, t, u, {"T1": 7.95, "T2": 6.0, "T3": 5.0, "T4": 20.0}, noise=True, seed=5)
     rec = Recording(t, {k: sim[k] for k in true.signal_names + true.input_names}, {}, "rim")
     ee = EquationError(true, rec)
-    at_rim = np.asarray(sim["L1"]) > 7.9
-    assert at_rim.mean() > 0.9        # T1 sits at its rim nearly all the record
-    # the plateau's top as the localisation reads it (0.999 quantile of the 5-sample mean)
-    top = float(np.quantile(uniform_filter1d(np.asarray(sim["L1"], float), 5)[at_rim], 0.999))
-    assert top > 8.02                 # 2.5+ smoothed sigmas above the rim
-    seen = true.copy()
-    seen.tank("T1").overflow = Overflow(to="T4", volume=top)
-    R = ee.residuals(seen)[:, :2]
-    sd = 0.02 * np.sqrt(2 / ee.smooth) * 1.5
+    smoothed = uniform_filter1d(np.asarray(sim["L1"], float), ee.smooth)
+    assert np.mean(smoothed[100:] < 8.0 - 0.03) > 0.03     # the noise reaches below a 0.03 L band
+    R = ee.residuals(true)[:, :2]
+    sd = 0.04 * np.sqrt(2 / ee.smooth) * 1.5
     z = R.mean(axis=0) / (sd / np.sqrt(len(R)))
     assert np.all(np.abs(z) < 5), z

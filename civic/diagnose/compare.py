@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.ndimage import binary_closing, uniform_filter1d
+from scipy.ndimage import uniform_filter1d
 from scipy.signal import lfilter
 
 from civic.errors import CivicError
@@ -81,10 +81,28 @@ def _zoh_average(u: np.ndarray, delay: float, dt: float) -> np.ndarray:
     return (c(b) - c(a)) / dt
 
 
-def _closed(mask: np.ndarray, width: int) -> np.ndarray:
-    """`mask` with its gaps shorter than `width` samples filled (edges kept as they are)."""
-    pad = width // 2
-    return binary_closing(np.pad(mask, pad, mode="edge"), structure=np.ones(width, bool))[pad:-pad]
+def closed_gaps(mask: np.ndarray, width: int) -> np.ndarray:
+    """`mask` with its gaps shorter than `width` samples filled; a gap at either end is kept.
+
+    The morphological closing by `width` samples (record ends padded with their own value),
+    done on the run boundaries: the equation error calls it on every residual evaluation."""
+    mask = np.asarray(mask, bool)
+    if mask.all() or not mask.any():
+        return mask
+    d = np.diff(mask.astype(np.int8))
+    gap_start = np.flatnonzero(d == -1) + 1                 # first False after a True
+    gap_end = np.flatnonzero(d == 1) + 1                    # first True after a False
+    if not mask[0]:
+        gap_end = gap_end[1:]                               # the record starts in a gap: kept
+    if not mask[-1]:
+        gap_start = gap_start[:-1]                          # a gap running to the end: kept
+    short = gap_end - gap_start < width
+    if not short.any():
+        return mask
+    cover = np.zeros(mask.size + 1, np.int32)
+    np.add.at(cover, gap_start[short], 1)
+    np.add.at(cover, gap_end[short], -1)
+    return mask | (np.cumsum(cover[:-1]) > 0)
 
 
 class EquationError:
@@ -209,7 +227,7 @@ class EquationError:
             tk = model.tanks[i]
             rim = tk.rim_volume()
             pre = V[:-1, i] + F[:, i]
-            at_rim = _closed(V[1:, i] >= rim - self.rim_tol[tk.name], RIM_GAP)
+            at_rim = closed_gaps(V[1:, i] >= rim - self.rim_tol[tk.name], RIM_GAP)
             # at the rim every net inflow spills (measured noise is not rectified into spill)
             s = np.where(at_rim, np.maximum(F[:, i], 0.0), np.maximum(pre - rim, 0.0))
             for dest, share in tk.overflow.targets():

@@ -131,6 +131,7 @@ class FitResult:
     fold_tol: float | None = 0.0            # a fold's held-out SSE may rise by this fraction (None: pooled only)
     val_rmse: float = float("nan")          # held-out RMSE in signal units (all folds)
     fold_params: list = field(default_factory=list)  # per fold: [mechanism.values()] of its fit
+    held_out: np.ndarray | None = None      # the held-out residual rows of `model` (one-fold evaluations)
 
 
 def significant(res: FitResult, ref: FitResult, min_gain: float = MIN_GAIN) -> tuple[bool, float, float]:
@@ -314,6 +315,8 @@ class Problem:
             if first is None:
                 first = res
         first.fold_params = params
+        if len(held) == 1:
+            first.held_out = held[0]
         Rv = np.concatenate(held)
         first.fold_sse = [float(np.sum(h ** 2)) for h in held]
         first.fold_tol = MIN_GAIN if len(held) > 1 and isinstance(self.engine, EquationError) else 0.0
@@ -325,14 +328,15 @@ class Problem:
         return first
 
     def unseen_held_out(self, res: FitResult) -> bool:
-        """True when the last mechanism of `res` changes no held-out row of a long equation-error
-        record (it acts in training blocks only): its held-out evidence is void there."""
-        if not isinstance(self.engine, EquationError) or len(self.folds()) > 1 or not res.mechanisms:
+        """True when the last mechanism of `res` (one `evaluate`d fold) changes no held-out row
+        of a long equation-error record (it acts in training blocks only): its held-out
+        evidence is void there."""
+        if not isinstance(self.engine, EquationError) or self.engine.short or not res.mechanisms \
+                or res.held_out is None:
             return False
         others = res.mechanisms[:-1]
         without = self.build(others, [m.x0 for m in others], res.cal)
-        return bool(np.allclose(self.residuals(res.model)[self.val], self.residuals(without)[self.val],
-                                rtol=0.0, atol=1e-9))
+        return bool(np.allclose(res.held_out, self.residuals(without)[self.val], rtol=0.0, atol=1e-9))
 
     def bic(self, Rv: np.ndarray, k: int) -> float:
         N = self.n_eff(Rv)

@@ -18,12 +18,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import binary_closing, uniform_filter1d
+from scipy.ndimage import uniform_filter1d
 
 from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording
 
-from .compare import INVENTORY, INVENTORY_BAND, RIM_TOL
+from .compare import INVENTORY, INVENTORY_BAND, RIM_GAP, RIM_TOL, closed_gaps
 from .mechanisms.base import tanks_touching
 from .noise import noise_sigma
 
@@ -144,7 +144,7 @@ def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict,
         top = float(np.quantile(ys, 0.999))
         band = max(3.0 * sig, 2.0 * res)
         # noise dips below the band break a long stay at the rim: gaps of a few samples are closed
-        at = binary_closing(ys >= top - band, structure=np.ones(7, bool))
+        at = closed_gaps(ys >= top - band, RIM_GAP)
         if at.sum() >= max(min_run, 0.01 * n) and _longest_run(at) >= min_run:
             q = s.invert(top)
             tk = model.tank(s.tank)

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.ndimage import uniform_filter1d
+from scipy.ndimage import binary_closing, uniform_filter1d
 
-from civic.diagnose.compare import INVENTORY, EquationError, SimulationError, holdout_mask
+from civic.diagnose.compare import INVENTORY, EquationError, SimulationError, closed_gaps, holdout_mask
 from civic.plant.model import Link, Overflow, PlantModel
 from civic.plant.simulate import Recording, simulate
 
@@ -82,6 +82,21 @@ def test_equation_error_matches_simulator(nominal, name):
 def test_holdout_blocks_alternate():
     mask = holdout_mask(60)
     assert mask.sum() == 30 and mask[:10].all() and not mask[10:20].any()
+
+
+@pytest.mark.parametrize("width", [3, 7])
+def test_closed_gaps_is_the_morphological_closing(width):
+    """The run-boundary version equals scipy's closing with the record ends padded by their
+    own value: short gaps filled, a gap at either end kept."""
+    rng = np.random.default_rng(width)
+    pad = width // 2
+    for _ in range(500):
+        runs = rng.integers(1, 2 * width, 12)
+        mask = np.repeat(np.arange(12) % 2 == rng.integers(2), runs)
+        want = binary_closing(np.pad(mask, pad, mode="edge"), structure=np.ones(width, bool))[pad:-pad]
+        np.testing.assert_array_equal(closed_gaps(mask, width), want)
+    assert not closed_gaps(np.array([0, 0, 1, 1, 0, 1, 1, 0], bool), 3)[[0, 1, 7]].any()
+    assert closed_gaps(np.array([1, 0, 0, 1], bool), 3).all()
 
 
 def test_multiple_shooting_restarts_from_measurement(nominal):

@@ -470,7 +470,8 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
                 if prob.unseen_held_out(res):
                     flip = [~prob.engine.train]
                     swapped = swapped or prob.evaluate(chosen, start_cal=current.cal, folds=flip)
-                    judged = (prob.evaluate(chosen + [cand], start_cal=current.cal, starts=_starts(cand),
+                    # from the swapped reference's calibration: the candidate's optimum is near it
+                    judged = (prob.evaluate(chosen + [cand], start_cal=swapped.cal, starts=_starts(cand),
                                             folds=flip), swapped, "blocks swapped")
             except RuntimeError:
                 continue

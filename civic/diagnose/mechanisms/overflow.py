@@ -55,9 +55,8 @@ class Overflow(Mechanism):
                         # only the inventory can tell the share, so only with a stated total
                         for d in dests:
                             if d not in (tk.name, OUTSIDE):
-                                out.append(cls(tk.name, {"volume": vol, "fraction": 0.6},
-                                               {"volume": (0.97 * vol, 1.005 * vol), "fraction": (0.0, 1.0)},
-                                               {"to": d, "rest": OUTSIDE}))
+                                out.append(cls(tk.name, {"fraction": 0.6}, {"fraction": (0.0, 1.0)},
+                                               {"volume": round(vol, 4), "to": d, "rest": OUTSIDE}))
             elif tk.name in clipped:
                 # its sensor sits at the clip value the model already has: is the tank spilling
                 # there too (level held at the rim) rather than rising on unseen? The rim is

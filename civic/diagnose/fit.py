@@ -131,7 +131,7 @@ class FitResult:
     fold_tol: float | None = 0.0            # a fold's held-out SSE may rise by this fraction (None: pooled only)
     val_rmse: float = float("nan")          # held-out RMSE in signal units (all folds)
     fold_params: list = field(default_factory=list)  # per fold: [mechanism.values()] of its fit
-    held_out: np.ndarray | None = None      # the held-out residual rows of `model` (one-fold evaluations)
+    held_out: np.ndarray | None = None      # `model`'s residuals on the held-out rows (default single fold)
 
 
 def significant(res: FitResult, ref: FitResult, min_gain: float = MIN_GAIN) -> tuple[bool, float, float]:
@@ -315,8 +315,8 @@ class Problem:
             if first is None:
                 first = res
         first.fold_params = params
-        if len(held) == 1:
-            first.held_out = held[0]
+        if folds is None and len(held) == 1:
+            first.held_out = held[0]          # the rows of self.val (unseen_held_out compares there)
         Rv = np.concatenate(held)
         first.fold_sse = [float(np.sum(h ** 2)) for h in held]
         first.fold_tol = MIN_GAIN if len(held) > 1 and isinstance(self.engine, EquationError) else 0.0

@@ -45,6 +45,7 @@ def run(args) -> int:
     from civic.diagnose.fit import diagnose
     from civic.diagnose.report import build_report, plot, print_summary, write_json
     from civic.plant.model import PlantModel
+    from civic.plant.simulate import outside_range
 
     _check_out(args.json, (".json",))
     _check_out(args.plot, (".png", ".pdf", ".svg"))
@@ -53,6 +54,8 @@ def run(args) -> int:
         raise CivicError("--window must be > 0")
     model = PlantModel.from_toml(args.model or default_model_path())
     rec = data.load(args.recording, model, args.plant)
+    for line in outside_range(model, rec.signals):
+        print(f"civic diagnose: warning: {args.recording}: {line}", file=sys.stderr)
     from civic.diagnose.compare import fully_measured
 
     full = fully_measured(model, rec)

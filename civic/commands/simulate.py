@@ -44,8 +44,9 @@ def register(sub) -> None:
     p.add_argument("--truth", metavar="OUT.json", help="closed loop: write the operation log (truth.json style)")
     p.add_argument("--inputs", metavar="IN.csv|IN.pcap", help="open loop on these recorded commands")
     p.add_argument("--like", metavar="REC.pcap", help="replay a recording's commands and start state; RMSE table")
-    p.add_argument("--init-samples", type=int, default=1, metavar="N",
-                   help="samples used to estimate unmeasured states (RMSE is over the samples after N)")
+    p.add_argument("--init-samples", type=int, metavar="N",
+                   help="samples used to estimate unmeasured states (RMSE is over the samples after N; "
+                        "default 1, or 50 when a tank is unmeasured)")
     p.set_defaults(func=run)
 
 
@@ -272,7 +273,7 @@ def _write_truth(path: str, res, args, faults: dict, duration: float) -> None:
 
 
 def _open_loop(args, model) -> int:
-    from civic.plant.simulate import initial_state, load_recording, simulate
+    from civic.plant.simulate import initial_state, load_recording, outside_range, simulate
 
     src = args.inputs or args.like
     rec = load_recording(src, model)
@@ -285,9 +286,18 @@ def _open_loop(args, model) -> int:
     missing = [i for i in model.input_names if i not in rec.signals]
     if missing:
         raise CivicError(f"{src}: no column for input(s) {', '.join(missing)}")
-    N = args.init_samples
+    for line in outside_range(model, rec.signals):
+        print(f"civic simulate: warning: {src}: {line}", file=sys.stderr)
+    sensed = {s.tank for s in model.sensors if s.name in rec.signals}
+    unmeasured = [tk.name for tk in model.tanks if tk.name not in sensed]
+    if len(unmeasured) == 1 and model.total_volume is not None:
+        unmeasured = []           # the stated total water gives it by mass balance
+    N = args.init_samples if args.init_samples is not None else (50 if unmeasured else 1)
     if not 1 <= N < n:
         raise CivicError(f"--init-samples must lie in 1..{n - 1}")
+    if N < 2 and unmeasured:
+        raise CivicError(f"--init-samples {N} cannot estimate the unmeasured tank(s) {', '.join(unmeasured)}: "
+                         "give 2 or more")
     if args.output:
         _check_output(args.output)
     t = np.arange(n) * model.dt

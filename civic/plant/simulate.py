@@ -676,8 +676,13 @@ def _load_csv(path: str, model: PlantModel) -> Recording:
         raise CivicError(f"{path}: bad CSV: {exc}") from None
     if raw.size and raw.shape[1] != len(header):
         raise CivicError(f"{path}: rows do not match the header's {len(header)} columns")
-    if raw.shape[0] == 0 or np.any(~np.isfinite(raw[:, tcol])):
-        raise CivicError(f"{path}: no data rows or bad {header[tcol]} values")
+    if raw.shape[0] == 0:
+        raise CivicError(f"{path}: no data rows")
+    bad = np.argwhere(~np.isfinite(raw))
+    if len(bad):
+        # an empty or non-numeric cell would become NaN and poison every result downstream
+        r, c = bad[0]
+        raise CivicError(f"{path}: line {r + 2}, column {header[c]}: not a number")
     cols = {h: raw[:, i] for i, h in enumerate(header) if i != tcol}
     t = raw[:, tcol] - raw[0, tcol]
     wires = set(model.wire_fields)
@@ -691,6 +696,27 @@ def _load_csv(path: str, model: PlantModel) -> Recording:
         return Recording(t, from_wire(model, f), {k: v.astype(np.int64) for k, v in f.items()}, path)
     raise CivicError(f"{path}: no column matches the model's signals "
                      f"({', '.join(model.input_names + model.signal_names)})")
+
+
+def outside_range(model: PlantModel, signals: dict) -> list[str]:
+    """One line per input or sensor whose recorded values leave the model's min..max. Inputs
+    are held at their limits when simulated; a sensor cannot read beyond its range, so such
+    readings are a fault or the wrong model."""
+    out = []
+    for spec, what in [(i, "input") for i in model.inputs] + [(s, "sensor") for s in model.sensors]:
+        if spec.name not in signals or (spec.min is None and spec.max is None):
+            continue
+        v = np.asarray(signals[spec.name], float)
+        lo = -np.inf if spec.min is None else spec.min
+        hi = np.inf if spec.max is None else spec.max
+        k = int(np.count_nonzero((v < lo) | (v > hi)))
+        if k:
+            where = (f"outside {lo:g}..{hi:g}" if spec.min is not None and spec.max is not None
+                     else f"above {hi:g}" if spec.min is None else f"below {lo:g}")
+            held = ", held at the limits" if what == "input" else ""
+            out.append(f"{what} {spec.name}: {k} of {len(v)} values {where} "
+                       f"(from {np.min(v):.4g} to {np.max(v):.4g}){held}")
+    return out
 
 
 def initial_state(model: PlantModel, signals: dict, n_init: int = 1, total_volume: float | None = None,

@@ -413,6 +413,22 @@ def test_generic_model_open_loop_on_recorded_inputs(tmp_path, capsys):
     y = np.genfromtxt(out, delimiter=",", names=True)["y_V"]
     assert y.max() <= 10.0
     assert civic_main(["simulate", "--model", str(model), "--inputs", str(rec), "-o", str(tmp_path / "x.pcap")]) == 2
+    capsys.readouterr()
+    # one sample cannot tell an unmeasured tank's volume (the default takes 50 then)
+    assert civic_main(["simulate", "--model", str(model), "--inputs", str(rec), "--init-samples", "1"]) == 2
+    assert "cannot estimate the unmeasured tank(s) upper" in capsys.readouterr().err
+    # a reading beyond the sensor's range is said; a cell that is no number stops the run
+    rows = rec.read_text().splitlines()
+    rows[100] = rows[100].rsplit(",", 1)[0] + ",12.5"
+    (tmp_path / "hi.csv").write_text("\n".join(rows) + "\n")
+    assert civic_main(["simulate", "--model", str(model), "--inputs", str(tmp_path / "hi.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "warning: " in err and "sensor y_V: 1 of 1024 values above 10 (from 2.912 to 12.5)" in err
+    rows[100] = rows[100].rsplit(",", 1)[0] + ",n/a"
+    (tmp_path / "nan.csv").write_text("\n".join(rows) + "\n")
+    assert civic_main(["simulate", "--model", str(model), "--inputs", str(tmp_path / "nan.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "line 101, column y_V: not a number" in err and len(err.strip().splitlines()) == 1
 
 
 def test_valve_dead_time_is_exact(plant):
@@ -437,6 +453,11 @@ def test_load_recording_time_columns_and_plant_address(plant, tmp_path):
     (tmp_path / "b.csv").write_text("u,y\n0.5,1.0\n")
     with pytest.raises(CivicError, match="time column"):
         load_recording(tmp_path / "b.csv", one)
+    # an empty or non-numeric cell is named, not read as NaN
+    for i, cell in enumerate(("abc", "")):
+        (tmp_path / f"c{i}.csv").write_text(f"t,u,y\n0,0.5,1.0\n0.1,0.6,{cell}\n")
+        with pytest.raises(CivicError, match="line 3, column y: not a number"):
+            load_recording(tmp_path / f"c{i}.csv", one)
     # two plants in one capture: the first by default, another by its address
     n = 20
     t = np.arange(n) * 0.1
@@ -453,6 +474,19 @@ def test_load_recording_time_columns_and_plant_address(plant, tmp_path):
     assert len(rec2.t) == n and rec2.signals["L1"][0] == 7.0
     with pytest.raises(CivicError, match="no plant messages from 10.0.0.9"):
         load_recording(tmp_path / "two.pcap", plant, plant="10.0.0.9")
+
+
+def test_values_outside_the_models_range_are_named(plant):
+    """Commands beyond an input's range are held at its limits and readings beyond a sensor's
+    range cannot be read: both are said, per signal, with how many and how far."""
+    from civic.plant.simulate import outside_range
+
+    sig = {"L1": np.array([5.0, 70.0, 6.0]), "L2": np.array([5.0, 5.0, 5.0]),
+           "p1": np.array([0.5, 1.2, 1.5]), "v1": np.array([0.0, 0.5, 1.0])}
+    assert outside_range(plant, sig) == [
+        "input p1: 2 of 3 values outside 0..1 (from 0.5 to 1.5), held at the limits",
+        "sensor L1: 1 of 3 values outside 0..65.535 (from 5 to 70)"]
+    assert outside_range(plant, {k: np.clip(v, 0, 1) for k, v in sig.items()}) == []
 
 
 def test_overflow_split_is_mass_exact_and_round_trips(plant, tmp_path):

@@ -47,10 +47,9 @@ INVENTORY_SPREAD = 0.005
 INVENTORY_BAND = 1.25
 RIM_TOL = 0.03       # L: a measured volume this close below the rim counts as at the rim...
 # ...or within this many sigmas of the smoothed reading's noise, if more. With the gaps closed
-# this keeps every sample of a 100 s stay under a rim at the plateau's top (the rim the diagnosis
-# gives a tank it sees held: 2.4 sigmas above the readings there); 6.5 sigmas also covered a 300 s
-# stay's top (3.1 sigmas) but spilled early enough on a tank nearing its datasheet rim to bend a
-# fitted sensor map (L1 n = 1.1 fitted 1.155)
+# this keeps every sample of a stay at the rim, whether the rim is the datasheet's or the median
+# reading of a plateau (what the diagnosis gives a tank it sees held); 6.5 sigmas spilled early
+# enough on a tank nearing its datasheet rim to bend a fitted sensor map (L1 n = 1.1 fitted 1.155)
 RIM_SIGMAS = 4.0
 RIM_GAP = 7          # samples: shorter dips below that band are noise, not the tank leaving its rim
 
@@ -137,9 +136,9 @@ class EquationError:
         self.smooth = smooth
         self.raw = {k: np.asarray(v, float) for k, v in rec.signals.items()}
         self.ys = {s: uniform_filter1d(self.raw[s], smooth, mode="nearest") for s in sensed.values()}
-        # a tank at its rim reads the rim +- the smoothed noise; the rim (a plateau's top, or a
-        # fitted one) may sit a few of those sigmas above the readings: every sample within
-        # RIM_SIGMAS of them counts as at the rim, and short dips below are closed
+        # a tank at its rim reads the rim +- the smoothed noise (the rim: the datasheet's, a
+        # plateau's median reading, or a fitted one): every sample within RIM_SIGMAS of those
+        # sigmas below it counts as at the rim, and short dips below are closed
         self.rim_tol = {}
         for tk in model.tanks:
             s = model.find("sensor", sensed[tk.name])

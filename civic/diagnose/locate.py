@@ -122,8 +122,8 @@ def mask_intervals(mask, t0, t1, gap: float = 0.0, min_rows: int = 1) -> list[li
 
 
 def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict, dict]:
-    """Level plateaus at a tank's top (overflow: the top of the band, and the sensor's median
-    reading there) and sensors stuck at an exact maximum (saturation)."""
+    """Level plateaus at a tank's top (overflow: the volume at the sensor's median reading
+    there, and that reading) and sensors stuck at an exact maximum (saturation)."""
     tanks, sensors, readings = {}, {}, {}
     n = len(rec.t)
     min_run = max(5, int(round(3.0 / dt)))
@@ -146,12 +146,15 @@ def _plateaus(model: PlantModel, rec: Recording, dt: float) -> tuple[dict, dict,
         # noise dips below the band break a long stay at the rim: gaps of a few samples are closed
         at = closed_gaps(ys >= top - band, RIM_GAP)
         if at.sum() >= max(min_run, 0.01 * n) and _longest_run(at) >= min_run:
-            q = s.invert(top)
+            # the rim is where the readings sit, their median: the band's top climbs with the
+            # length of the stay (2.4 smoothed sigmas above the median in 100 s, 3.1 in 300 s)
+            reading = float(np.median(ys[at]))
+            q = s.invert(reading)
             tk = model.tank(s.tank)
             vol = q * tk.area if s.quantity == "level" else q
             if s.tank not in tanks:
                 tanks[s.tank] = vol
-                readings[s.name] = float(np.median(ys[at]))
+                readings[s.name] = reading
     return tanks, sensors, readings
 
 

@@ -497,14 +497,15 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
         ok, dbic, gain = significant(r, ref, min_gain)
         if not ok:
             break
-        cand, res, (r, ref, how) = _variant_on_both_orders(prob, chosen, current, results, cand, min_gain)
-        ok, dbic, gain = significant(r, ref, min_gain)
+        (cand, res, (r, ref, how)), variants = _variant_on_both_orders(prob, chosen, current, results, cand,
+                                                                       min_gain)
+        _, dbic, gain = significant(r, ref, min_gain)      # a variant returned is significant too
         alternatives = _alternatives(results, cand, dbic, min_gain)
         chosen.append(res.mechanisms[-1])
         chosen[:-1] = res.mechanisms[:-1]
         diag.findings.append({"mechanism": cand, "fit": res, "dbic": dbic, "gain": gain,
                               "prev": current, "alternatives": alternatives,
-                              **({"held_out": how} if how else {})})
+                              **({"held_out": how} if how else {}), **({"variants": variants} if variants else {})})
         current = res
         # later rounds: only what helped on its own in the first round (or shares its component)
         helped = {t["candidate"] for t in diag.tried if t["dbic"] < 0}
@@ -520,18 +521,20 @@ def _variant_on_both_orders(prob: Problem, chosen: list, current: FitResult, res
     significant on the held-out blocks: they fit the training blocks alike, yet may extrapolate
     differently, so they are decided on both block orders (each order's training blocks fitted, the
     other's judged; pooled held-out BIC). On PI seed 43 the tied L1 map won on one order (n = 1.15,
-    an offset) and missed the other by 9x; the map through the rim holds on both."""
+    an offset) and missed the other by 9x; the map through the rim holds on both. Also returns, when
+    that decision was taken, each variant's pooled held-out BIC change against the model without it."""
     same = [x for x in results if (x[0].name, x[0].component) == (cand.name, cand.component)
             and not x[2][2] and significant(x[2][0], x[2][1], min_gain)[0]]
     best = next(x for x in results if x[0] is cand)
     if len(same) < 2 or best[2][2] or prob.engine.short or not isinstance(prob.engine, EquationError):
-        return best
+        return best, []
     both = [prob.engine.train, ~prob.engine.train]
-    ref = prob.evaluate(chosen, start_cal=current.cal, folds=both)
-    scored = [(prob.evaluate(chosen + [x[0]], start_cal=current.cal, starts=_starts(x[0]), folds=both).val_bic, i)
-              for i, x in enumerate(same)]
-    _, i = min(scored)
-    return same[i] if scored[i][0] < ref.val_bic else best
+    ref = prob.evaluate(chosen, start_cal=current.cal, folds=both).val_bic
+    scored = [prob.evaluate(chosen + [x[0]], start_cal=current.cal, starts=_starts(x[0]), folds=both).val_bic - ref
+              for x in same]
+    i = int(np.argmin(scored))
+    decided = sorted(({"candidate": x[0].label, "dbic": d} for x, d in zip(same, scored)), key=lambda v: v["dbic"])
+    return (same[i] if scored[i] < 0 else best), decided
 
 
 def _alternatives(results, cand: Mechanism, dbic: float, min_gain: float = MIN_GAIN) -> list[dict]:

@@ -199,6 +199,14 @@ def test_variants_of_the_chosen_mechanism_are_decided_on_both_block_orders(nomin
     s = plant.find("sensor", "L1")
     s.exponent, s.gain = 1.1, 5.0 ** -0.1
     res = run_closed_loop(plant, 600.0, controller="pi", seed=43, noise=True, controller_model=nominal)
-    d = diagnose(nominal, Recording(res.t, res.signals, res.fields, "pi seed 43"))
+    rec = Recording(res.t, res.signals, res.fields, "pi seed 43")
+    d = diagnose(nominal, rec)
     assert [f["mechanism"].label for f in d.findings] == ["sensor_characteristic(L1, bend through the rim)"]
     assert abs(d.final_all.mechanisms[0].values()["exponent"] - 1.1) < 0.01
+    from civic.diagnose.report import build_report
+
+    finding = build_report(d, rec)["findings"][0]
+    variants = finding["variants_both_orders"]            # the evidence of that decision
+    assert variants[0]["candidate"] == "sensor_characteristic(L1, bend through the rim)"
+    assert variants[0]["heldout_dbic"] < variants[1]["heldout_dbic"] < 0
+    assert "on both block orders" in finding["evidence"]

@@ -273,7 +273,7 @@ def _write_truth(path: str, res, args, faults: dict, duration: float) -> None:
 
 
 def _open_loop(args, model) -> int:
-    from civic.plant.simulate import initial_state, load_recording, outside_range, simulate
+    from civic.plant.simulate import initial_state, load_recording, outside_range, simulate, unmeasured_tanks
 
     src = args.inputs or args.like
     rec = load_recording(src, model)
@@ -288,10 +288,7 @@ def _open_loop(args, model) -> int:
         raise CivicError(f"{src}: no column for input(s) {', '.join(missing)}")
     for line in outside_range(model, rec.signals):
         print(f"civic simulate: warning: {src}: {line}", file=sys.stderr)
-    sensed = {s.tank for s in model.sensors if s.name in rec.signals}
-    unmeasured = [tk.name for tk in model.tanks if tk.name not in sensed]
-    if len(unmeasured) == 1 and model.total_volume is not None:
-        unmeasured = []           # the stated total water gives it by mass balance
+    unmeasured = unmeasured_tanks(model, rec.signals)
     N = args.init_samples if args.init_samples is not None else (50 if unmeasured else 1)
     if not 1 <= N < n:
         raise CivicError(f"--init-samples must lie in 1..{n - 1}")

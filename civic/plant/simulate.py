@@ -734,13 +734,24 @@ def initial_state(model: PlantModel, signals: dict, n_init: int = 1, total_volum
     if total_volume is None:
         total_volume = model.total_volume
     x0 = measured_state(model, signals, average)
-    missing = [t.name for t in model.tanks if t.name not in x0]
-    if missing and total_volume is not None and len(missing) == 1:
-        x0[missing[0]] = total_volume - sum(x0[t.name] for t in model.tanks if t.name in x0)
-        missing = []
+    missing = unmeasured_tanks(model, signals, total_volume)
     if missing:
         x0.update(_fit_unmeasured(model, signals, x0, missing, n_init))
+    else:
+        for t in model.tanks:
+            if t.name not in x0:       # the one tank the stated total water gives
+                x0[t.name] = total_volume - sum(x0[k.name] for k in model.tanks if k.name in x0)
     return x0
+
+
+def unmeasured_tanks(model: PlantModel, signals: dict, total_volume: float | None = None) -> list[str]:
+    """Tanks `initial_state` must fit over the first samples: those no recorded sensor reads,
+    unless it is one tank and the total water is known (`total_volume`, default the model's)."""
+    if total_volume is None:
+        total_volume = model.total_volume
+    sensed = {s.tank for s in model.sensors if s.name in signals}
+    missing = [t.name for t in model.tanks if t.name not in sensed]
+    return [] if len(missing) == 1 and total_volume is not None else missing
 
 
 def measured_state(model: PlantModel, signals: dict, average: int = 1) -> dict:

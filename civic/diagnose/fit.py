@@ -279,6 +279,11 @@ class Problem:
         val_sse = float(np.sum(R[self.val] ** 2))
         return FitResult(fitted, cal_f, xu, train_sse, val_sse, self.bic(R[self.val], k), k, model)
 
+    def both_orders(self) -> list[np.ndarray]:
+        """The equation error's interleaved split used both ways (training masks): each order's
+        training blocks fitted, the other's held out."""
+        return [self.engine.train, ~self.engine.train]
+
     def folds(self) -> list[np.ndarray]:
         """Training masks; each fold's complement is held out. Equation error: interleaved blocks
         (one split). Free-run simulation: two halves, each held out once (blocked 2-fold CV),
@@ -293,8 +298,8 @@ class Problem:
                 # each block held out once. The fold that holds out only the blocks without
                 # the effect cannot improve there (a model with the effect is at best as good
                 # as one without): it may not get worse by more than MIN_GAIN
-                return [self.engine.train, ~self.engine.train]
-            return [self.engine.train]
+                return self.both_orders()
+            return self.both_orders()[:1]
         n = len(self.engine.train)
         init = np.arange(n) < (max(1, self.engine.n_init) if self.unmeasured else 0)
         k = FREE_RUN_FOLDS if self.unmeasured else 2
@@ -468,7 +473,7 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
                                     starts=_starts(cand))
                 judged = (res, current, "")
                 if prob.unseen_held_out(res):
-                    flip = [~prob.engine.train]
+                    flip = prob.both_orders()[1:]
                     swapped = swapped or prob.evaluate(chosen, start_cal=current.cal, folds=flip)
                     # from the swapped reference's calibration: the candidate's optimum is near it
                     judged = (prob.evaluate(chosen + [cand], start_cal=swapped.cal, starts=_starts(cand),
@@ -528,9 +533,9 @@ def _variant_on_both_orders(prob: Problem, chosen: list, current: FitResult, res
             if (c.name, c.component) == (cand.name, cand.component) and not h and significant(r, ref, min_gain)[0]]
     if len(same) < 2 or how or prob.engine.short or not isinstance(prob.engine, EquationError):
         return best, []
-    both = [prob.engine.train, ~prob.engine.train]
-    ref = prob.evaluate(chosen, start_cal=current.cal, folds=both).val_bic
-    scored = [prob.evaluate(chosen + [x[0]], start_cal=current.cal, starts=_starts(x[0]), folds=both).val_bic - ref
+    ref = prob.evaluate(chosen, start_cal=current.cal, folds=prob.both_orders()).val_bic
+    scored = [prob.evaluate(chosen + [x[0]], start_cal=current.cal, starts=_starts(x[0]),
+                            folds=prob.both_orders()).val_bic - ref
               for x in same]
     i = int(np.argmin(scored))
     decided = sorted(({"candidate": x[0].label, "dbic": d} for x, d in zip(same, scored)), key=lambda v: v["dbic"])

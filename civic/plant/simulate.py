@@ -15,6 +15,7 @@ The same generator emits a numpy variant that runs B simulations at once
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -673,7 +674,11 @@ def _load_csv(path: str, model: PlantModel) -> Recording:
     try:
         raw = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
     except ValueError as exc:
-        raise CivicError(f"{path}: bad CSV: {exc}") from None
+        # numpy lists every ragged row on lines of their own; the first says enough
+        first = re.search(r"Line #(\d+) \(got (\d+) columns instead of (\d+)\)", str(exc))
+        why = (f"line {first[1]} has {first[2]} columns instead of {first[3]}" if first
+               else " ".join(str(exc).split()))
+        raise CivicError(f"{path}: bad CSV: {why}") from None
     if raw.size and raw.shape[1] != len(header):
         raise CivicError(f"{path}: rows do not match the header's {len(header)} columns")
     if raw.shape[0] == 0:

@@ -458,6 +458,10 @@ def test_load_recording_time_columns_and_plant_address(plant, tmp_path):
         (tmp_path / f"c{i}.csv").write_text(f"t,u,y\n0,0.5,1.0\n0.1,0.6,{cell}\n")
         with pytest.raises(CivicError, match="line 3, column y: not a number"):
             load_recording(tmp_path / f"c{i}.csv", one)
+    # a ragged row is named on one line (numpy lists every one on lines of their own)
+    (tmp_path / "r.csv").write_text("t,u,y\n0,0.5,1.0\n0.1,0.6\n0.2,0.6,1.1,7\n")
+    with pytest.raises(CivicError, match=r"bad CSV: line 3 has 2 columns instead of 3$"):
+        load_recording(tmp_path / "r.csv", one)
     # two plants in one capture: the first by default, another by its address
     n = 20
     t = np.arange(n) * 0.1

@@ -117,9 +117,10 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         if f.get("held_out"):
             ev[0] += (f" ({f['held_out']}: it acts in the training blocks only, so the model with and "
                       "without it were refitted on the held-out blocks and judged on the training ones)")
-        if f.get("variants"):
-            ev.append("chosen among its variants on both block orders (pooled held-out BIC vs the model "
-                      "without: " + ", ".join(f"{v['candidate']} {v['dbic']:+.1f}" for v in f["variants"]) + ")")
+        if f.get("both_orders"):
+            ev.append("chosen on both block orders among its variants and the candidates one order did not "
+                      "separate (pooled held-out BIC vs the model without: "
+                      + ", ".join(f"{v['candidate']} {v['dbic']:+.1f}" for v in f["both_orders"]) + ")")
         if isinstance(eng, EquationError):
             Rp = _resid(diag, f["prev"])            # the model without this finding
             tanks = [mech.component] if mech.component in eng.columns else []
@@ -164,9 +165,9 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         })
         if f.get("held_out"):
             findings[-1]["heldout_split"] = "swapped"
-        if f.get("variants"):
+        if f.get("both_orders"):
             findings[-1]["variants_both_orders"] = [{"candidate": v["candidate"], "heldout_dbic": round(v["dbic"], 2)}
-                                                    for v in f["variants"]]
+                                                    for v in f["both_orders"]]
         if "heldout_rmse_without" in f:
             findings[-1]["heldout_rmse_without"] = round(f["heldout_rmse_without"], 6)
         findings[-1]["heldout_error"] = _heldout_error(f["fit"])

@@ -183,6 +183,15 @@ def test_free_run_swaps_list_what_explains_the_held_out_data_as_well():
     assert alts[0]["dbic_vs_chosen"] > 0 and alts[0]["gain"] > 0
 
 
+def _bench_draw(nominal, p1, v1, pipe23, v2):
+    """The plant with one draw of the bench sweep's calibration spread (bench_diagnose.sweep_plant)."""
+    plant = nominal.copy()
+    for path, value in zip(("pump.P1.gain", "link.V1.coeff", "link.pipe23.coeff", "link.V2.coeff"),
+                           (p1, v1, pipe23, v2)):
+        plant.set(path, value)
+    return plant
+
+
 def test_variants_of_the_chosen_mechanism_are_decided_on_both_block_orders(nominal):
     """A bent L1 (n = 1.1, calibrated at 5 L) under the PI loops, with one bench draw of the
     calibration spread: T1 sits at its rim. On the training blocks the map tied at the readings'
@@ -192,10 +201,7 @@ def test_variants_of_the_chosen_mechanism_are_decided_on_both_block_orders(nomin
     from civic.plant.control import run_closed_loop
     from civic.plant.simulate import Recording
 
-    plant = nominal.copy()
-    for path, value in (("pump.P1.gain", 0.30915313), ("link.V1.coeff", 0.25170976),
-                        ("link.pipe23.coeff", 0.12397987), ("link.V2.coeff", 0.29802977)):
-        plant.set(path, value)
+    plant = _bench_draw(nominal, 0.30915313, 0.25170976, 0.12397987, 0.29802977)
     s = plant.find("sensor", "L1")
     s.exponent, s.gain = 1.1, 5.0 ** -0.1
     res = run_closed_loop(plant, 600.0, controller="pi", seed=43, noise=True, controller_model=nominal)
@@ -222,10 +228,7 @@ def test_contenders_one_order_does_not_separate_are_decided_on_both(nominal):
     from civic.diagnose.fit import ALT_DBIC
     from civic.diagnose.report import build_report
 
-    plant = nominal.copy()
-    for path, value in (("pump.P1.gain", 0.31060626), ("link.V1.coeff", 0.25069528),
-                        ("link.pipe23.coeff", 0.12302626), ("link.V2.coeff", 0.29889611)):
-        plant.set(path, value)
+    plant = _bench_draw(nominal, 0.31060626, 0.25069528, 0.12302626, 0.29889611)
     plant.find("link", "V2").exponent = 0.7
     res = run_closed_loop(plant, 300.0, controller="mpc", seed=2, noise=True, controller_model=nominal)
     rec = Recording(res.t, res.signals, res.fields, "mpc seed 2, 300 s")

@@ -540,9 +540,9 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
             and ((c.name, c.component) == (cand.name, cand.component) or r.val_bic - ref.val_bic - top < ALT_DBIC)]
     if len(pool) < 2 or how or prob.engine.short or not isinstance(prob.engine, EquationError):
         return best, []
-    ref = prob.evaluate(chosen, start_cal=current.cal, folds=prob.both_orders()).val_bic
-    scored = [prob.evaluate(chosen + [x[0]], start_cal=current.cal, starts=_starts(x[0]),
-                            folds=prob.both_orders()).val_bic - ref
+    both = prob.both_orders()
+    ref = prob.evaluate(chosen, start_cal=current.cal, folds=both).val_bic
+    scored = [prob.evaluate(chosen + [x[0]], start_cal=current.cal, starts=_starts(x[0]), folds=both).val_bic - ref
               for x in pool]
     i = int(np.argmin(scored))
     decided = sorted(({"candidate": x[0].label, "dbic": d} for x, d in zip(pool, scored)), key=lambda v: v["dbic"])

@@ -192,20 +192,25 @@ def _bench_draw(nominal, p1, v1, pipe23, v2):
     return plant
 
 
+def _closed_loop(nominal, plant, seconds, controller, seed):
+    """A noisy closed-loop recording of `plant`, the loops designed on the nominal model."""
+    from civic.plant.control import run_closed_loop
+    from civic.plant.simulate import Recording
+
+    res = run_closed_loop(plant, seconds, controller=controller, seed=seed, noise=True, controller_model=nominal)
+    return Recording(res.t, res.signals, res.fields, f"{controller} seed {seed}, {seconds:g} s")
+
+
 def test_variants_of_the_chosen_mechanism_are_decided_on_both_block_orders(nominal):
     """A bent L1 (n = 1.1, calibrated at 5 L) under the PI loops, with one bench draw of the
     calibration spread: T1 sits at its rim. On the training blocks the map tied at the readings'
     middle (it cannot be the true one) and the map bent through the rim fit alike; the tied one
     won on the held-out blocks (n = 1.15 with an offset) and a spurious pump dead time joined it.
     Decided on both block orders, the map through the rim is chosen, alone, at the true bend."""
-    from civic.plant.control import run_closed_loop
-    from civic.plant.simulate import Recording
-
     plant = _bench_draw(nominal, 0.30915313, 0.25170976, 0.12397987, 0.29802977)
     s = plant.find("sensor", "L1")
     s.exponent, s.gain = 1.1, 5.0 ** -0.1
-    res = run_closed_loop(plant, 600.0, controller="pi", seed=43, noise=True, controller_model=nominal)
-    rec = Recording(res.t, res.signals, res.fields, "pi seed 43")
+    rec = _closed_loop(nominal, plant, 600.0, "pi", 43)
     d = diagnose(nominal, rec)
     assert [f["mechanism"].label for f in d.findings] == ["sensor_characteristic(L1, bend through the rim)"]
     assert abs(d.final_all.mechanisms[0].values()["exponent"] - 1.1) < 0.01
@@ -223,15 +228,12 @@ def test_contenders_one_order_does_not_separate_are_decided_on_both(nominal):
     the calibration spread: on the held-out blocks V2's valve characteristic (n = 0.92) led the
     flow law by 1.9 in BIC, within ALT_DBIC; decided on both block orders the flow law wins by far
     more than ALT_DBIC, so it is the finding, alone, and the characteristic is no alternative."""
-    from civic.plant.control import run_closed_loop
-    from civic.plant.simulate import Recording
     from civic.diagnose.fit import ALT_DBIC
     from civic.diagnose.report import build_report
 
     plant = _bench_draw(nominal, 0.31060626, 0.25069528, 0.12302626, 0.29889611)
     plant.find("link", "V2").exponent = 0.7
-    res = run_closed_loop(plant, 300.0, controller="mpc", seed=2, noise=True, controller_model=nominal)
-    rec = Recording(res.t, res.signals, res.fields, "mpc seed 2, 300 s")
+    rec = _closed_loop(nominal, plant, 300.0, "mpc", 2)
     d = diagnose(nominal, rec)
     assert [f["mechanism"].label for f in d.findings] == ["flow_law(V2, exponent)"]
     assert abs(d.final_all.mechanisms[0].values()["exponent"] - 0.7) < 0.05

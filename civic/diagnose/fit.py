@@ -505,9 +505,10 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
         (cand, res, (r, ref, how)), both = _decide_on_both_orders(prob, chosen, current, results, best, min_gain)
         _, dbic, gain = significant(r, ref, min_gain)      # a candidate returned is significant too
         # what both orders separated from the chosen one is no longer indistinguishable from it
-        mine = next((v["dbic"] for v in both if v["candidate"] == cand.label), 0.0)
-        separated = {v["candidate"] for v in both if v["dbic"] - mine >= ALT_DBIC}
-        alternatives = _alternatives([x for x in results if x[0].label not in separated], cand, dbic, min_gain)
+        pooled = {v["candidate"]: v["dbic"] for v in both}
+        separated = {c for c, d in pooled.items() if d - pooled[cand.label] >= ALT_DBIC}
+        alternatives = _alternatives([x for x in results if x[0].label not in separated], cand, dbic, min_gain,
+                                     pooled)
         chosen.append(res.mechanisms[-1])
         chosen[:-1] = res.mechanisms[:-1]
         diag.findings.append({"mechanism": cand, "fit": res, "dbic": dbic, "gain": gain,
@@ -549,19 +550,27 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
     return (pool[i] if scored[i] < 0 else best), decided
 
 
-def _alternatives(results, cand: Mechanism, dbic: float, min_gain: float = MIN_GAIN) -> list[dict]:
+def _alternatives(results, cand: Mechanism, dbic: float, min_gain: float = MIN_GAIN,
+                  pooled: dict | None = None) -> list[dict]:
     """Candidates the held-out data does not separate from the chosen one: significant on their
     own against their reference, and within ALT_DBIC of the chosen one's held-out BIC gain
     (`dbic`; best first). They are reported, never added as findings; a variant of the chosen
-    mechanism on the same component is not an alternative explanation."""
+    mechanism on the same component is not an alternative explanation. Where the choice was
+    decided on both block orders (`pooled`: candidate label -> pooled held-out BIC change), an
+    alternative decided with it is compared with the chosen one on that pooled evidence."""
+    pooled = pooled or {}
     out = []
-    for c, res, (r, ref, _) in sorted(results, key=lambda x: x[2][0].val_bic - x[2][1].val_bic):
+    for c, res, (r, ref, _) in results:
         ok, d, gain = significant(r, ref, min_gain)
         if (c.name, c.component) == (cand.name, cand.component) or d - dbic >= ALT_DBIC:
             continue
         if ok:
-            out.append({"mechanism": c, "fit": res, "dbic": d, "gain": gain, "dbic_vs_chosen": d - dbic})
-    return out[:MAX_ALTERNATIVES]
+            alt = {"mechanism": c, "fit": res, "dbic": d, "gain": gain, "dbic_vs_chosen": d - dbic}
+            if c.label in pooled and cand.label in pooled:
+                alt["dbic_both_orders"] = pooled[c.label]
+                alt["dbic_vs_chosen"] = pooled[c.label] - pooled[cand.label]
+            out.append(alt)
+    return sorted(out, key=lambda a: a["dbic_vs_chosen"])[:MAX_ALTERNATIVES]
 
 
 def uncertainty(prob: Problem, res: FitResult, fold_params: list | None = None) -> list[dict]:

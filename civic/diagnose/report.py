@@ -263,6 +263,8 @@ def _alternatives_report(diag: Diagnosis, f: dict) -> list[dict]:
                     "heldout_dbic_vs_chosen": round(a["dbic_vs_chosen"], 2),
                     "description": m.describe(m.values()),
                     "experiment": separating_experiment(f["mechanism"], m, diag.model_nominal)})
+        if "dbic_both_orders" in a:
+            out[-1]["heldout_dbic_both_orders"] = round(a["dbic_both_orders"], 2)
     return out
 
 

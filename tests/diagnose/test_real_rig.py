@@ -149,6 +149,13 @@ def test_alternatives_are_the_significant_candidates_within_alt_dbic():
     results.append((lk, fits[2][1], (res(50.0 - 100.0 + ALT_DBIC / 4, 44.0), swapped_ref, "blocks swapped")))
     alts = _alternatives(results, fl, -100.0)
     assert [a["mechanism"] for a in alts] == [lk, vc]
+    # decided on both block orders: the pooled evidence compares the two decided together
+    pooled = {fl.label: -300.0, vc.label: -300.0 + 0.9 * ALT_DBIC}
+    alts = _alternatives(results, fl, -100.0, pooled=pooled)
+    assert [a["mechanism"] for a in alts] == [lk, vc]
+    assert alts[1]["dbic_both_orders"] == -300.0 + 0.9 * ALT_DBIC
+    assert abs(alts[1]["dbic_vs_chosen"] - 0.9 * ALT_DBIC) < 1e-9
+    assert "dbic_both_orders" not in alts[0] and alts[0]["dbic_vs_chosen"] == ALT_DBIC / 4
 
 
 def test_free_run_swaps_list_what_explains_the_held_out_data_as_well():

@@ -31,6 +31,9 @@ demo: venv
 		--events $(OUT)/events_continuous.jsonl
 	$(BIN)/civic evaluate $(OUT)/continuous --labels traces/continuous/labels.csv \
 		--entries $(OUT)/entries.json --json $(OUT)/continuous/scores.json
+	@# why balance_t3 flagged: the fault named, sized and dated from the same recording
+	$(BIN)/civic diagnose traces/continuous/cl_vm1_error_onset420.pcap --json $(OUT)/diagnose_vm1.json \
+		--plot $(OUT)/diagnose_vm1.png
 	@# the same recordings through BMv2, where it is installed (root: network namespace)
 	@if command -v simple_switch_grpc >/dev/null && command -v p4c-bm2-ss >/dev/null && [ "$$(id -u)" = 0 ]; then \
 		$(BIN)/civic replay traces/training/*.pcap -o $(OUT)/replay_bmv2 --entries $(OUT)/entries.json \

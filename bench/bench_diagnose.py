@@ -155,8 +155,12 @@ SWEEP = {
     "deadzone_P1": ("pump_dead_zone", "P1", (0.03, 0.05)),     # no flow below this command
     "split_T1": ("overflow", "T1", (0.2, 0.5, 0.8)),            # rim 9 L, this share into T4, rest out
     "split_T2": ("overflow", "T2", (0.5,)),                     # rim 8.5 L (bundled setpoints), idem
+    # a fault switched on mid-run (at CLOSURE_ONSET): the line passes this share less from then on
+    "closure_V2": ("closure", "V2", (0.3, 0.55)),      # VM1 on the drain: warning, error
+    "closure_P1": ("closure", "P1", (0.2, 0.4)),       # VM2 on the pump line: warning, error
     "clean": (None, None, (0.0,)),
 }
+CLOSURE_ONSET = 300.0   # s into the 600 s record
 
 NEW_KINDS = ("flowlaw", "sensorchar", "deadzone", "split")
 
@@ -209,6 +213,9 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
         m.tank(comp).overflow = Overflow(to="T4", volume=split_rim(comp), fraction=mag, rest="outside")
     elif kind == "saturation":
         m.find("sensor", comp).max = mag
+    elif kind == "closure":
+        x = m.find("pump" if comp.startswith("P") else "link", comp)
+        x.closure, x.onset = mag, CLOSURE_ONSET
     return m
 
 

@@ -205,13 +205,23 @@ class EquationError:
         (trapezoid rule)."""
         tidx = {t.name: i for i, t in enumerate(model.tanks)}
         n1 = self.n - 1
-        A = np.stack([self._opening(v) for v in model.valves], axis=1) if model.valves else np.zeros((self.n, 0))
-        C = np.stack([self._pump_avg(p.input, p.dead_time)[:-1] for p in model.pumps], axis=1) \
-            if model.pumps else np.zeros((n1, 0))
-        fl = plant_flows(model, np.concatenate((V[:-1], V[1:])), np.concatenate((A[:-1], A[1:])),
-                         np.concatenate((C, C)))
-        F = 0.5 * (fl.net[:n1] + fl.net[n1:]) * self.dt
-        out = 0.5 * (fl.outside[:n1] + fl.outside[n1:]) * self.dt
+        VV, AA, CC = self._interval_ends(model, V)
+        phases = model.phases()
+        if len(phases) == 1:
+            fl = plant_flows(model, VV, AA, CC)
+            net, outside = fl.net, fl.outside
+        else:
+            # a closure from its onset on: each interval with the model in force at its start
+            starts = [int(round(t0 / self.dt)) for t0, _ in phases]
+            which = np.tile(np.searchsorted(starts, np.arange(n1), side="right") - 1, 2)
+            net, outside = np.zeros((2 * n1, len(model.tanks))), np.zeros(2 * n1)
+            for p, (_, m) in enumerate(phases):
+                rows = which == p
+                if rows.any():
+                    fl = plant_flows(m, VV[rows], AA[rows], CC[rows])
+                    net[rows], outside[rows] = fl.net, fl.outside
+        F = 0.5 * (net[:n1] + net[n1:]) * self.dt
+        out = 0.5 * (outside[:n1] + outside[n1:]) * self.dt
 
         def move(src, dst, q):
             nonlocal out
@@ -232,6 +242,27 @@ class EquationError:
             for dest, share in tk.overflow.targets():
                 move(tk.name, dest, share * s)
         return F, out
+
+    def _interval_ends(self, model: PlantModel, V: np.ndarray):
+        """Volumes, openings and held pump commands at both ends of every sample interval
+        (start rows, then end rows)."""
+        n1 = self.n - 1
+        A = np.stack([self._opening(v) for v in model.valves], axis=1) if model.valves else np.zeros((self.n, 0))
+        C = np.stack([self._pump_avg(p.input, p.dead_time)[:-1] for p in model.pumps], axis=1) \
+            if model.pumps else np.zeros((n1, 0))
+        return np.concatenate((V[:-1], V[1:])), np.concatenate((A[:-1], A[1:])), np.concatenate((C, C))
+
+    def through(self, model: PlantModel) -> dict:
+        """Litres through each pump and link per window, from its first end to its second, on
+        the measured volumes (spill aside)."""
+        V, _ = self.volumes(model)
+        fl = plant_flows(model, *self._interval_ends(model, V))
+        n1 = self.n - 1
+        out = {}
+        for names, q in (([p.name for p in model.pumps], fl.pumps), ([lk.name for lk in model.links], fl.links)):
+            c = np.concatenate((np.zeros((1, q.shape[1])), np.cumsum(0.5 * (q[:n1] + q[n1:]) * self.dt, axis=0)))
+            out.update({name: c[self.k1, i] - c[self.k0, i] for i, name in enumerate(names)})
+        return out
 
     def residuals(self, model: PlantModel) -> np.ndarray:
         V, cens = self.volumes(model)
@@ -323,7 +354,7 @@ class SimulationError:
         out = {s: np.empty(self.n) for s in self.columns}
         for k in range(0, self.n, self.horizon):
             e = min(self.n, k + self.horizon + 1)
-            seg = simulate(model, self.t[k:e] - self.t[k], {n: v[k:e] for n, v in self.inputs.items()},
+            seg = simulate(model.from_time(self.t[k]), self.t[k:e] - self.t[k], {n: v[k:e] for n, v in self.inputs.items()},
                            measured_state(model, {n: v[k:] for n, v in self.rec.signals.items()}, 1))
             for s in self.columns:
                 out[s][k:e] = seg[s]

@@ -42,6 +42,11 @@ def separating_experiment(a, b, model=None) -> str:
         return (f"a pump step test{shut}: commands 2 %, 5 %, 10 %, 30 %, 60 % of the range for 20 s each "
                 f"into {tank} (a dead zone shows as no rise at the small commands, a head effect as a rate "
                 f"that falls with {tank}'s level, a gain as the same factor at every command)")
+    if "closure" in (ka, kb):
+        c = next(m for m in (a, b) if m.name == "closure")
+        return (f"the plant's own test procedures now (the drain test for the drain line, the fill test for "
+                f"the pump line) against a run before {c.fixed['onset']:g} s: a closure since then shows in "
+                "the test's class, a standing property of the plant does not change between them")
     if "overflow" in (ka, kb):
         return ("a fill test past the suspected rim with the tank below isolated (its valve shut): "
                 "the level at which the rise stops, and where the water goes, name the overflow")

@@ -31,6 +31,7 @@ BLOCK = 6          # rows averaged per block in the lack-of-fit statistic
 FLAG_RATIO = 2.0   # block-mean chi-square / expected above which a column is flagged
 FLAG_Z = 6.0       # |mean| in standard errors above which a column is flagged
 SCAN_MAX = 10.0    # one block-mean chi-square this high (equation error): a *suspect* column
+ONSET_EDGE = 0.05  # a change point this close to either end of the record is a constant offset
 TAIL_RMS = 1.4     # rms this far above the robust (median-based) sigma: heavy tails, i.e. a
                    # mismatch confined to transients (a valve's dead time): also a suspect
 
@@ -58,6 +59,7 @@ class Localisation:
     signal_span: dict = field(default_factory=dict)
     signal_range: dict = field(default_factory=dict)  # sensor -> (1st, 99th percentile) of its reading
     pinned: list[str] = field(default_factory=list)   # components whose coefficient the calibration pinned
+    onsets: dict = field(default_factory=dict)        # pump/link -> (time, z, closure, not before): its flow changed
 
     @property
     def mismatch(self) -> bool:
@@ -281,6 +283,31 @@ def _regimes(model: PlantModel, rec: Recording, R: np.ndarray, sigma: np.ndarray
     return out
 
 
+def change_point(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) -> tuple | None:
+    """(time, z, step, not before) of the likeliest change, from a time on, in how a tank's balance residual
+    `r` follows the flow `q` through one component (both per window; rows of 0 residual carry no
+    information): r = a q before, b q after, step = b - a, z = the step in standard errors. A line
+    clogged or a manual valve partly closed mid-run changes the flow it passes by a share of
+    itself, so the residual steps where the component carries flow, not while it is shut: the
+    change came after `not before` (the end of the last window before it with flow) and by
+    `time`. The split stays ONSET_EDGE of the flow's weight inside either end (nearer: a
+    constant factor)."""
+    idx = np.flatnonzero((r != 0.0) & (q != 0.0))
+    if idx.size < 4:
+        return None
+    x, y = q[idx], r[idx]
+    sxx, sxy = np.cumsum(x * x), np.cumsum(x * y)
+    w1, w2 = sxx[:-1], sxx[-1] - sxx[:-1]
+    ok = (w1 >= ONSET_EDGE * sxx[-1]) & (w2 >= ONSET_EDGE * sxx[-1])
+    if not ok.any():
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        step = (sxy[-1] - sxy[:-1]) / w2 - sxy[:-1] / w1
+        z = np.where(ok, np.abs(step) / (max(sigma, 1e-12) * np.sqrt(1.0 / w1 + 1.0 / w2)), -1.0)
+    j = int(np.argmax(z))
+    return float(times[idx[j + 1], 0]), float(z[j]), float(step[j]), float(times[idx[j], 1])
+
+
 def driven_tank(model: PlantModel, component: str) -> str | None:
     """The tank whose level a coefficient acts on: a link's source (its head drives the flow), a
     pump's delivery tank."""
@@ -406,4 +433,15 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
             loc.max_volume[t.name] = cap
             loc.max_level[t.name] = cap / t.area
     loc.regimes = _regimes(model, rec, R, sigma, cols, engine.row_times, loc.flagged, engine.dt)
+    if engine.kind == "equation" and not engine.short:
+        q = engine.through(model)
+        for comp in q:
+            t = driven_tank(model, comp)
+            if t in loc.flagged:
+                j = cols.index(t)
+                cp = change_point(R[:, j], q[comp], engine.row_times, sigma[j])
+                if cp is not None:
+                    # r = +closure q on a link's source, -closure q on a pump's delivery tank
+                    sign = -1.0 if any(p.name == comp for p in model.pumps) else 1.0
+                    loc.onsets[comp] = (cp[0], cp[1], sign * cp[2], cp[3])
     return loc

@@ -411,7 +411,8 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     coefficients (same structure, e.g. a manual valve closed mid-run).
     `pi_gains` = (kp, ti) of the PI loops (default PIController's).
     """
-    plant = _Plant4(model)
+    phases = model.phases()          # a closure with an onset in the model acts from then on
+    plant = _Plant4(phases[0][1])
     rng = np.random.default_rng(seed)
     dt = model.dt
     n = int(round(duration / dt))
@@ -434,17 +435,16 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
         us = plant.steady_input(x0v[tidx])
     if controller not in ("mpc", "pi"):
         raise CivicError(f"unknown controller {controller!r} (mpc, pi)")
-    cmodel = controller_model if controller_model is not None else model
+    cmodel = controller_model if controller_model is not None else phases[0][1]
     ctrl = LinearMPC(cmodel, sp) if controller == "mpc" else PIController(cmodel, sp, *(pi_gains or ()))
     iin = [model.input_names.index(c) for c in COMMANDS]
     u_full = np.zeros(len(model.inputs))
     u_full[iin] = us
     ctrl.reset_actuators(us)
-    stepper = Stepper(model, x0v, u_full)
-    k_onset, P_onset = n, None
+    stepper = Stepper(phases[0][1], x0v, u_full)
+    switch = {int(round(t0 / dt)): stepper.cm.params_for(m).tolist() for t0, m in phases[1:]}
     if onset is not None:
-        k_onset = int(round(onset[0] / dt))
-        P_onset = stepper.cm.params_for(onset[1]).tolist()
+        switch[int(round(onset[0] / dt))] = stepper.cm.params_for(onset[1]).tolist()
     ns = len(model.state_names)
     X = np.empty((n, ns))
     Ucmd = np.zeros((n, len(model.inputs)))
@@ -462,8 +462,8 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     last_u = np.asarray(us, float)
     for k in range(n):
         t = k * dt
-        if k == k_onset:
-            stepper.P = P_onset
+        if k in switch:
+            stepper.P = switch[k]
         X[k] = x
         # measurement as the controller sees it (wire resolution)
         if qsens is not None:

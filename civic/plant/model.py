@@ -72,6 +72,7 @@ class Pump:
     gain: float
     dead_time: float = 0.0
     closure: float = 0.0
+    onset: float = 0.0               # the closure acts from this time on (s from the first sample)
     min_source_volume: float = 0.0
     head_coeff: float = 0.0
     input_offset: float = 0.0
@@ -103,6 +104,7 @@ class Link:
     law: str = "orifice"
     valve: str | None = None
     closure: float = 0.0
+    onset: float = 0.0               # the closure acts from this time on (s from the first sample)
     exponent: float = 0.5
     min_level: float = 0.0
 
@@ -142,7 +144,7 @@ _SECTIONS = (("tank", "tanks", Tank), ("pump", "pumps", Pump), ("valve", "valves
              ("link", "links", Link), ("sensor", "sensors", Sensor))
 _FLOAT_FIELDS = {"area", "capacity", "gain", "dead_time", "closure", "min_source_volume", "head_coeff",
                  "input_offset", "tau", "coeff", "exponent", "min_level", "offset", "noise_sigma",
-                 "resolution", "min", "max", "wire_scale", "level", "volume", "fraction"}
+                 "resolution", "min", "max", "wire_scale", "level", "volume", "fraction", "onset"}
 
 
 def _key(name: str) -> str:
@@ -181,7 +183,8 @@ def _dump(obj) -> dict:
     for f in fields(obj):
         v = getattr(obj, f.name)
         if v is None or (isinstance(obj, Overflow) and f.name in ("fraction", "rest") and v == f.default) \
-                or (isinstance(obj, Sensor) and f.name == "exponent" and v == f.default):
+                or (isinstance(obj, Sensor) and f.name == "exponent" and v == f.default) \
+                or (f.name == "onset" and v == f.default):
             continue
         if isinstance(v, Overflow):
             v = _dump(v)
@@ -269,6 +272,34 @@ class PlantModel:
 
     def copy(self) -> "PlantModel":
         return copy.deepcopy(self)
+
+    def phases(self) -> list[tuple[float, "PlantModel"]]:
+        """(start time, model in force) in time order: a closure with an onset acts from its onset
+        on (a manual valve closed, a line clogged mid-record); one phase when none has."""
+        late = sorted({x.onset for x in self.pumps + self.links if x.closure and x.onset > 0})
+        if not late:
+            return [(0.0, self)]
+        out = []
+        for t0 in [0.0] + late:
+            m = self.from_time(t0)
+            for x in m.pumps + m.links:
+                if x.onset > 0:             # not yet
+                    x.closure, x.onset = 0.0, 0.0
+            out.append((t0, m))
+        return out
+
+    def from_time(self, t0: float) -> "PlantModel":
+        """The model as it stands `t0` seconds in: closures whose onset has passed act from the
+        start, later onsets move t0 earlier (a record cut at t0)."""
+        m = copy.copy(self)
+        m.pumps, m.links = [copy.copy(x) for x in self.pumps], [copy.copy(x) for x in self.links]
+        for x in m.pumps + m.links:
+            if x.closure and x.onset > 0:
+                if x.onset > t0:
+                    x.onset -= t0
+                else:
+                    x.onset = 0.0
+        return m
 
     # ---- names ------------------------------------------------------------------------
     @property
@@ -371,6 +402,11 @@ class PlantModel:
                 raise CivicError(f"{where}: pump {p.name}: unknown input {p.input!r}")
             if p.dead_time < 0:
                 raise CivicError(f"{where}: pump {p.name}: dead_time must be >= 0")
+        for x in self.pumps + self.links:
+            if not 0.0 <= x.closure <= 1.0:
+                raise CivicError(f"{where}: {x.name}: closure must lie in [0, 1]")
+            if not (x.onset >= 0 and math.isfinite(x.onset)):
+                raise CivicError(f"{where}: {x.name}: onset must be a time >= 0 s")
         for v in self.valves:
             if v.input not in inputs:
                 raise CivicError(f"{where}: valve {v.name}: unknown input {v.input!r}")

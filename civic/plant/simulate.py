@@ -119,15 +119,9 @@ class CompiledModel:
         nt, nv = self.ntanks, self.nvalves
         L = []
         emit = L.append
-        emit("def _run(n, UA, UB, X0, P, rec):")
+        emit("def _run(n, UA, UB, X0, P, rec, SW=()):")
         ind = "    "
-        self._emit_constants(emit, ind)
-        exp = "np.exp" if batch else "exp"
-        for i, v in enumerate(self._valve):
-            if v["tau"] is not None:
-                for j, (_, h, _) in enumerate(self._segs):
-                    emit(f"{ind}EH{i}_{j} = {exp}(-{h!r} / {v['tau']})")
-                    emit(f"{ind}EM{i}_{j} = {exp}(-{h / 2!r} / {v['tau']})")
+        self._emit_constants(emit, ind, batch)
         for i in range(nt):
             emit(f"{ind}x{i} = X0[{i}]")
         for i in range(nv):
@@ -135,8 +129,15 @@ class CompiledModel:
         emit(f"{ind}out = X0[{nt + nv}]")
         state = [f"x{i}" for i in range(nt)] + [f"a{i}" for i in range(nv)] + ["out"]
         emit(f"{ind}rec(({', '.join(state)},))")
+        # SW: (sample, parameters) switches in time order (a closure from its onset on)
+        emit(f"{ind}sw = iter(SW)")
+        emit(f"{ind}kn, Pn = next(sw, (-1, None))")
         emit(f"{ind}for k in range(n - 1):")
         ind2 = ind * 2
+        emit(f"{ind2}if k == kn:")
+        emit(f"{ind2}{ind}P = Pn")
+        self._emit_constants(emit, ind2 + ind, batch)
+        emit(f"{ind2}{ind}kn, Pn = next(sw, (-1, None))")
         for j, (f0, h, nsteps) in enumerate(self._segs):
             # held (delayed) commands in this segment
             for ai, a in enumerate(self._acts):
@@ -162,7 +163,7 @@ class CompiledModel:
         emit = L.append
         ind = "    "
         emit("def _flows(X, A, C, P):")
-        self._emit_constants(emit, ind)
+        self._emit_constants(emit, ind, True, lags=False)
         for i in range(nt):
             emit(f"{ind}x{i} = X[{i}]")
         for i, v in enumerate(self._valve):
@@ -184,8 +185,14 @@ class CompiledModel:
             else:
                 emit(f"{ind}c{i} = G{i} * (up{i} - OF{i} if up{i} > OF{i} else 0.0)")
 
-    def _emit_constants(self, emit, ind):
+    def _emit_constants(self, emit, ind, batch, lags=True):
         nt = self.ntanks
+        exp = "np.exp" if batch else "exp"
+        for i, v in enumerate(self._valve if lags else ()):
+            if v["tau"] is not None:
+                for j, (_, h, _) in enumerate(self._segs):
+                    emit(f"{ind}EH{i}_{j} = {exp}(-{h!r} / {v['tau']})")
+                    emit(f"{ind}EM{i}_{j} = {exp}(-{h / 2!r} / {v['tau']})")
         for i in range(nt):
             emit(f"{ind}iA{i} = 1.0 / {self._area[i]}")
         for i, r in self._rim.items():
@@ -354,13 +361,14 @@ class CompiledModel:
             UB.append(col[np.maximum(k - a.m, 0)])
         return UA, UB
 
-    def run(self, U, x0, params=None, outside0: float = 0.0) -> np.ndarray:
+    def run(self, U, x0, params=None, outside0: float = 0.0, switches=()) -> np.ndarray:
         """States at every sample: (n, nstates) or, batched, (n, nstates, B).
 
         U: (n, ninputs) held commands (physical units, already limited).
         x0: (nstates,) or (nstates, B). params: None, (nparams,) or (nparams, B).
-        Column nstates (the last) of the internal record is the cumulative
-        volume sent outside; it is available as `self.last_outside`.
+        switches: (sample k, params) in time order: those parameters from the interval
+        [t_k, t_k+1) on (a closure from its onset). Column nstates (the last) of the internal
+        record is the cumulative volume sent outside; it is available as `self.last_outside`.
         """
         U = np.asarray(U, dtype=float)
         if U.ndim != 2 or U.shape[1] != len(self.input_names):
@@ -379,7 +387,12 @@ class CompiledModel:
             X0 = np.empty((ns + 1, B))
             X0[:ns] = x0 if x0.ndim == 2 else x0[:, None]
             X0[ns] = outside0
-            Pl = [P[i] if P.ndim == 2 else np.full(B, P[i]) for i in range(P.shape[0])]
+
+            def per_run(P):
+                return [P[i] if P.ndim == 2 else np.full(B, P[i]) for i in range(P.shape[0])]
+
+            Pl = per_run(P)
+            SW = [(int(k), per_run(np.asarray(Pk, dtype=float))) for k, Pk in switches]
             X = np.empty((n, ns + 1, B))
             pos = [0]
 
@@ -388,13 +401,14 @@ class CompiledModel:
                 pos[0] += 1
 
             if n:
-                self._function(True)(n, UA, UB, list(X0), Pl, rec)
+                self._function(True)(n, UA, UB, list(X0), Pl, rec, SW)
         else:
             UA = [u.tolist() for u in UA]
             UB = [u.tolist() for u in UB]
             X0 = [float(v) for v in x0] + [float(outside0)]
             if n:
-                self._function(False)(n, UA, UB, X0, P.tolist(), out.append)
+                SW = [(int(k), np.asarray(Pk, dtype=float).tolist()) for k, Pk in switches]
+                self._function(False)(n, UA, UB, X0, P.tolist(), out.append, SW)
             X = np.array(out, dtype=float).reshape(n, ns + 1)
         self.last_outside = X[:, ns]
         return X[:, :ns]
@@ -581,7 +595,13 @@ def simulate(model: PlantModel, t, inputs: dict, x0, noise: bool = False, seed=N
     U = inputs_matrix(model, inputs, n)
     x = _x0_vector(model, x0, U)
     cm = compile_model(model)
-    X = cm.run(U, x, cm.params_for(model) if params is None else params)
+    if params is None:
+        phases = model.phases()
+        params = cm.params_for(phases[0][1])
+        switches = [(int(round(t0 / model.dt)), cm.params_for(m)) for t0, m in phases[1:]]
+    else:
+        switches = ()
+    X = cm.run(U, x, params, switches=switches)
     nt = len(model.tanks)
     vol = X[:, :nt]
     rng = np.random.default_rng(seed) if noise else None

@@ -129,6 +129,51 @@ def test_batch_equals_scalar(plant):
         np.testing.assert_allclose(cm.run(U, x0, P[:, j]), Xb[:, :, j], atol=1e-12)
 
 
+def test_closure_from_its_onset_on(plant, tmp_path):
+    """A closure with an onset acts from then on: before it the run is the plant's without it,
+    after it the run the closed line would make from that state; batched runs switch alike,
+    the closed loop honours it as its explicit `onset`, and the model file keeps it."""
+    from civic.plant.control import run_closed_loop
+    from civic.plant.procedures import apply_faults
+
+    rng = np.random.default_rng(5)
+    n, k = 1200, 700
+    t = np.arange(n) * plant.dt
+    u = random_inputs(n, rng)
+    x0 = {"T1": 6.0, "T2": 5.0, "T3": 4.0, "T4": 25.0}
+    closed = apply_faults(plant, {"vm1": 0.55})
+    late = closed.copy()
+    late.find("link", "V2").onset = k * plant.dt
+    run = simulate(late, t, u, x0)
+    np.testing.assert_array_equal(run["volumes"][:k + 1], simulate(plant, t, u, x0)["volumes"][:k + 1])
+    at = {**{tk: run["volumes"][k, i] for i, tk in enumerate(plant.tank_names)},
+          **{v.name: run["openings"][k, j] for j, v in enumerate(plant.valves)}}
+    rest = simulate(closed, t[k:] - t[k], {key: val[k:] for key, val in u.items()}, at)
+    np.testing.assert_allclose(run["volumes"][k:], rest["volumes"], atol=1e-12)
+    assert np.abs(run["volumes"][-1] - simulate(closed, t, u, x0)["volumes"][-1]).max() > 0.1
+    # batched: the switch applies to every run of the batch
+    cm = compile_model(late)
+    P0, P1 = cm.params_for(plant), cm.params_for(closed)
+    U = np.column_stack([u[key] for key in plant.input_names])
+    xv = np.array([6.0, 5.0, 4.0, 25.0, 0.0, 0.0])
+    Xb = cm.run(U, xv, np.tile(P0[:, None], (1, 2)), switches=[(k, np.tile(P1[:, None], (1, 2)))])
+    np.testing.assert_allclose(Xb[:, :, 1], cm.run(U, xv, P0, switches=[(k, P1)]), atol=1e-12)
+    # closed loop: the model's onset is the `onset` argument
+    a = run_closed_loop(plant, 120.0, controller="pi", seed=3, noise=False, onset=(60.0, closed))
+    late.find("link", "V2").onset = 60.0
+    b = run_closed_loop(late, 120.0, controller="pi", seed=3, noise=False)
+    np.testing.assert_array_equal(a.volumes, b.volumes)
+    late.to_toml(tmp_path / "late.toml")
+    back = PlantModel.from_toml(tmp_path / "late.toml").find("link", "V2")
+    assert (back.closure, back.onset) == (0.55, 60.0)
+    assert "onset" not in plant.to_toml()          # a model without one writes none
+    for field, value in (("closure", 1.5), ("onset", -1.0)):
+        bad = plant.copy()
+        setattr(bad.find("link", "V2"), field, value)
+        with pytest.raises(CivicError, match=field):
+            bad.validate()
+
+
 def test_sensor_characteristic_reads_inverts_and_round_trips(tmp_path):
     """y = gain*level**exponent + offset: the simulator reads through it, the initial state
     inverts it, the model file keeps it (and leaves the linear default out)."""

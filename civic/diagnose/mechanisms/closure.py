@@ -1,0 +1,47 @@
+"""Closure from a time on: a line that passes a share less from its onset (a manual valve partly
+closed, a clog: the plant's VM1 on the drain, VM2 on the pump line) — a fault switched on mid-run."""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Mechanism
+from .coefficient import CAL_SPREAD
+
+ONSET_Z = 5.0     # the step in the component's residual-to-flow ratio, in standard errors, worth a fit
+
+
+class Closure(Mechanism):
+    name = "closure"
+
+    def edit(self, model, p):
+        kind = "pump" if any(x.name == self.component for x in model.pumps) else "link"
+        x = model.find(kind, self.component)
+        x.closure, x.onset = float(p["closure"]), float(p["onset"])
+
+    @classmethod
+    def candidates(cls, model, loc):
+        """Where the localisation found a pump or link whose flow the residual follows by a
+        larger share from a time on (`Localisation.onsets`), that share a loss."""
+        out = []
+        for comp, (t0, z, share, after) in getattr(loc, "onsets", {}).items():
+            if z >= ONSET_Z and share > 1.5 * CAL_SPREAD:
+                out.append(cls(comp, {"closure": float(min(share, 0.9))}, {"closure": (0.0, 0.95)},
+                               {"onset": t0, "not_before": after}))
+        return out
+
+    @property
+    def n_params(self) -> int:
+        return 2      # the closure and its onset; `not_before` only brackets the onset
+
+    def active_rows(self, model, volumes):
+        return np.arange(len(volumes)) * model.dt >= self.fixed["onset"]
+
+    def negligible(self, p, model):
+        return p["closure"] <= 1.5 * CAL_SPREAD      # within calibration territory
+
+    def describe(self, p):
+        when = f"from {p['onset']:g} s on"
+        if p.get("not_before", p["onset"]) < p["onset"] - 1e-9:
+            when += f" (it carried no flow from {p['not_before']:g} s: the change came in between)"
+        return (f"{self.component} passes {100 * p['closure']:.0f} % less {when}: a manual valve partly "
+                "closed, a clog; a fault switched on mid-run")

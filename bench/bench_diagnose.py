@@ -155,12 +155,14 @@ SWEEP = {
     "deadzone_P1": ("pump_dead_zone", "P1", (0.03, 0.05)),     # no flow below this command
     "split_T1": ("overflow", "T1", (0.2, 0.5, 0.8)),            # rim 9 L, this share into T4, rest out
     "split_T2": ("overflow", "T2", (0.5,)),                     # rim 8.5 L (bundled setpoints), idem
-    # a fault switched on mid-run (at CLOSURE_ONSET): the line passes this share less from then on
+    # faults switched on mid-run (at ONSET): a line passes this share less from then on, a leak opens
     "closure_V2": ("closure", "V2", (0.3, 0.55)),      # VM1 on the drain: warning, error
     "closure_P1": ("closure", "P1", (0.2, 0.4)),       # VM2 on the pump line: warning, error
+    "leakon_T3": ("leak", "T3", (0.012,)),             # into T4, from ONSET on
+    "leakon_T1": ("leak", "T1", (0.01,)),
     "clean": (None, None, (0.0,)),
 }
-CLOSURE_ONSET = 300.0   # s into the 600 s record
+ONSET = 300.0   # s into the 600 s record
 
 NEW_KINDS = ("flowlaw", "sensorchar", "deadzone", "split")
 
@@ -184,9 +186,10 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
     for path in ("pump.P1.gain", "link.V1.coeff", "link.pipe23.coeff", "link.V2.coeff"):
         m.set(path, float(m.get(path)) * (1 + rng.uniform(-0.04, 0.04)))
     kind, _, comp = case.partition("_")
-    if kind == "leak":
+    if kind in ("leak", "leakon"):
         tank = comp.split("_")[0]
-        m.links.append(Link("leak", from_=tank, to="outside" if comp.endswith("out") else "T4", coeff=mag))
+        m.links.append(Link("leak", from_=tank, to="outside" if comp.endswith("out") else "T4", coeff=mag,
+                            since=ONSET if kind == "leakon" else 0.0))
     elif kind == "offset":
         m.find("sensor", comp).offset = mag
     elif kind == "deadtime":
@@ -215,7 +218,7 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
         m.find("sensor", comp).max = mag
     elif kind == "closure":
         x = m.find("pump" if comp.startswith("P") else "link", comp)
-        x.closure, x.onset = mag, CLOSURE_ONSET
+        x.closure, x.onset = mag, ONSET
     return m
 
 
@@ -255,10 +258,19 @@ def sweep_case(job) -> dict:
     named = [(f["mechanism"].name, f["mechanism"].component) for f in d.findings]
     # right: the first finding names the mechanism and component, and nothing else is found
     ok = (not d.mismatch) if want[0] is None or not active else named[:1] == [want] and len(named) == 1
-    if ok and want[0] == "leak":     # and where the water goes
-        to = d.findings[0]["fit"].mechanisms[-1].values()["to"]
-        ok = to == ("outside" if case.endswith("_out") else "T4")
-        named[0] += (to,)
+    if ok and want[0] == "leak":     # and where the water goes, and since when
+        p = d.findings[0]["fit"].mechanisms[-1].values()
+        ok = p["to"] == ("outside" if case.endswith("_out") else "T4")
+        named[0] += (p["to"],)
+        if case.startswith("leakon"):
+            ok = ok and p.get("not_before", -1.0) - 5.0 <= ONSET <= p.get("not_after", -1.0) + 5.0
+            named[0] += (f"from {p.get('since', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})",)
+        else:
+            ok = ok and "since" not in p
+    if ok and want[0] == "closure":  # and since when
+        p = d.findings[0]["fit"].mechanisms[-1].values()
+        ok = p["not_before"] - 5.0 <= ONSET <= p["not_after"] + 5.0
+        named[0] += (f"from {p['onset']:g} s ({p['not_before']:g}-{p['not_after']:g})",)
     return {"case": case, "mag": mag, "seed": seed, "active": active, "ok": ok, "findings": named,
             "flagged": d.loc.flagged}
 

@@ -260,9 +260,13 @@ class EquationError:
         n1 = self.n - 1
         out = {}
         for names, q in (([p.name for p in model.pumps], fl.pumps), ([lk.name for lk in model.links], fl.links)):
-            c = np.concatenate((np.zeros((1, q.shape[1])), np.cumsum(0.5 * (q[:n1] + q[n1:]) * self.dt, axis=0)))
-            out.update({name: c[self.k1, i] - c[self.k0, i] for i, name in enumerate(names)})
+            out.update({name: self.window_sum(0.5 * (q[:n1, i] + q[n1:, i]) * self.dt) for i, name in enumerate(names)})
         return out
+
+    def window_sum(self, x: np.ndarray) -> np.ndarray:
+        """Per window, the sum of a per-interval series (n - 1 values)."""
+        c = np.concatenate(([0.0], np.cumsum(x)))
+        return c[self.k1] - c[self.k0]
 
     def residuals(self, model: PlantModel) -> np.ndarray:
         V, cens = self.volumes(model)

@@ -32,6 +32,8 @@ FLAG_RATIO = 2.0   # block-mean chi-square / expected above which a column is fl
 FLAG_Z = 6.0       # |mean| in standard errors above which a column is flagged
 SCAN_MAX = 10.0    # one block-mean chi-square this high (equation error): a *suspect* column
 ONSET_EDGE = 0.05  # a change point this close to either end of the record is a constant offset
+ONSET_LR = 6.0     # chi-square units: splits this close to the best one bracket the onset
+IDLE_SHARE = 0.02  # a window passing less than this share of a component's typical flow: it is shut
 TAIL_RMS = 1.4     # rms this far above the robust (median-based) sigma: heavy tails, i.e. a
                    # mismatch confined to transients (a valve's dead time): also a suspect
 
@@ -59,7 +61,8 @@ class Localisation:
     signal_span: dict = field(default_factory=dict)
     signal_range: dict = field(default_factory=dict)  # sensor -> (1st, 99th percentile) of its reading
     pinned: list[str] = field(default_factory=list)   # components whose coefficient the calibration pinned
-    onsets: dict = field(default_factory=dict)        # pump/link -> (time, z, closure, not before): its flow changed
+    onsets: dict = field(default_factory=dict)        # pump/link -> (time, z, closure, not before, not after)
+    leak_onsets: dict = field(default_factory=dict)   # tank -> (time, z, c, not before, not after): a leak
 
     @property
     def mismatch(self) -> bool:
@@ -284,15 +287,19 @@ def _regimes(model: PlantModel, rec: Recording, R: np.ndarray, sigma: np.ndarray
 
 
 def change_point(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) -> tuple | None:
-    """(time, z, step, not before) of the likeliest change, from a time on, in how a tank's balance residual
+    """(time, z, step, not before, not after) of the likeliest change, from a time on, in how a tank's balance residual
     `r` follows the flow `q` through one component (both per window; rows of 0 residual carry no
     information): r = a q before, b q after, step = b - a, z = the step in standard errors. A line
     clogged or a manual valve partly closed mid-run changes the flow it passes by a share of
-    itself, so the residual steps where the component carries flow, not while it is shut: the
-    change came after `not before` (the end of the last window before it with flow) and by
-    `time`. The split stays ONSET_EDGE of the flow's weight inside either end (nearer: a
+    itself, so the residual steps where the component carries flow, not while it is shut
+    (windows below IDLE_SHARE of its 90th-percentile flow are left out). The change came
+    between `not before` and `not after`: the window ends around every split whose likelihood
+    ratio to the best is within ONSET_LR, stretched over the windows without flow next to
+    them. The split stays ONSET_EDGE of the flow's weight inside either end (nearer: a
     constant factor)."""
-    idx = np.flatnonzero((r != 0.0) & (q != 0.0))
+    # a window whose flow is a trace of the typical (a valve closing on its time constant)
+    # tells nothing about the share either
+    idx = np.flatnonzero((r != 0.0) & (np.abs(q) > IDLE_SHARE * np.percentile(np.abs(q), 90)))
     if idx.size < 4:
         return None
     x, y = q[idx], r[idx]
@@ -305,7 +312,10 @@ def change_point(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) 
         step = (sxy[-1] - sxy[:-1]) / w2 - sxy[:-1] / w1
         z = np.where(ok, np.abs(step) / (max(sigma, 1e-12) * np.sqrt(1.0 / w1 + 1.0 / w2)), -1.0)
     j = int(np.argmax(z))
-    return float(times[idx[j + 1], 0]), float(z[j]), float(step[j]), float(times[idx[j], 1])
+    # the splits the data cannot tell from the best (likelihood ratio within ONSET_LR)
+    near = np.flatnonzero(ok & (z * z >= z[j] ** 2 - ONSET_LR))
+    return (float(times[idx[j + 1], 0]), float(z[j]), float(step[j]), float(times[idx[near[0]], 1]),
+            float(times[idx[near[-1] + 1], 0]))
 
 
 def driven_tank(model: PlantModel, component: str) -> str | None:
@@ -443,5 +453,15 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
                 if cp is not None:
                     # r = +closure q on a link's source, -closure q on a pump's delivery tank
                     sign = -1.0 if any(p.name == comp for p in model.pumps) else 1.0
-                    loc.onsets[comp] = (cp[0], cp[1], sign * cp[2], cp[3])
+                    loc.onsets[comp] = (cp[0], cp[1], sign * cp[2], cp[3], cp[4])
+        # a leak that opened: the balance starts losing c*sqrt(h) (the leak law's regressor)
+        V, _ = engine.volumes(model)
+        for i, tk in enumerate(model.tanks):
+            if tk.name in loc.flagged:
+                h = np.sqrt(np.maximum(V[:, i] / tk.area, 0.0))
+                q = engine.window_sum(0.5 * (h[:-1] + h[1:]) * engine.dt)
+                j = cols.index(tk.name)
+                cp = change_point(R[:, j], q, engine.row_times, sigma[j])
+                if cp is not None:
+                    loc.leak_onsets[tk.name] = (cp[0], cp[1], -cp[2], cp[3], cp[4])
     return loc

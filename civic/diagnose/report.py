@@ -64,7 +64,7 @@ def _finding_intervals(diag: Diagnosis, prev, res, mech=None) -> list[list[float
     gap = 0.01 * float(t[-1] - t[0] + model.dt)
     fitted = res.mechanisms[-1]
     p = fitted.values()
-    if fitted.name == "closure":
+    if fitted.name == "closure" or "since" in fitted.fixed:      # from a time on
         return _mask_intervals(fitted.active_rows(model, t), t, model.dt, gap)
     if fitted.name == "sensor_saturation":
         y = np.asarray(eng.rec.signals[fitted.component], float)

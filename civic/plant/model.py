@@ -105,6 +105,7 @@ class Link:
     valve: str | None = None
     closure: float = 0.0
     onset: float = 0.0               # the closure acts from this time on (s from the first sample)
+    since: float = 0.0               # the link passes nothing before this time (a leak that opened)
     exponent: float = 0.5
     min_level: float = 0.0
 
@@ -144,7 +145,7 @@ _SECTIONS = (("tank", "tanks", Tank), ("pump", "pumps", Pump), ("valve", "valves
              ("link", "links", Link), ("sensor", "sensors", Sensor))
 _FLOAT_FIELDS = {"area", "capacity", "gain", "dead_time", "closure", "min_source_volume", "head_coeff",
                  "input_offset", "tau", "coeff", "exponent", "min_level", "offset", "noise_sigma",
-                 "resolution", "min", "max", "wire_scale", "level", "volume", "fraction", "onset"}
+                 "resolution", "min", "max", "wire_scale", "level", "volume", "fraction", "onset", "since"}
 
 
 def _key(name: str) -> str:
@@ -184,7 +185,7 @@ def _dump(obj) -> dict:
         v = getattr(obj, f.name)
         if v is None or (isinstance(obj, Overflow) and f.name in ("fraction", "rest") and v == f.default) \
                 or (isinstance(obj, Sensor) and f.name == "exponent" and v == f.default) \
-                or (f.name == "onset" and v == f.default):
+                or (f.name in ("onset", "since") and v == f.default):
             continue
         if isinstance(v, Overflow):
             v = _dump(v)
@@ -275,8 +276,10 @@ class PlantModel:
 
     def phases(self) -> list[tuple[float, "PlantModel"]]:
         """(start time, model in force) in time order: a closure with an onset acts from its onset
-        on (a manual valve closed, a line clogged mid-record); one phase when none has."""
-        late = sorted({x.onset for x in self.pumps + self.links if x.closure and x.onset > 0})
+        on (a manual valve closed, a line clogged mid-record), a link with a `since` passes nothing
+        before it (a leak that opened); one phase when there is neither."""
+        late = sorted({x.onset for x in self.pumps + self.links if x.closure and x.onset > 0}
+                      | {lk.since for lk in self.links if lk.since > 0})
         if not late:
             return [(0.0, self)]
         out = []
@@ -285,20 +288,22 @@ class PlantModel:
             for x in m.pumps + m.links:
                 if x.onset > 0:             # not yet
                     x.closure, x.onset = 0.0, 0.0
+            for lk in m.links:
+                if lk.since > 0:            # not yet there
+                    lk.closure, lk.onset, lk.since = 1.0, 0.0, 0.0
             out.append((t0, m))
         return out
 
     def from_time(self, t0: float) -> "PlantModel":
-        """The model as it stands `t0` seconds in: closures whose onset has passed act from the
-        start, later onsets move t0 earlier (a record cut at t0)."""
+        """The model as it stands `t0` seconds in: onsets and `since` times that have passed act
+        from the start, later ones move t0 earlier (a record cut at t0)."""
         m = copy.copy(self)
         m.pumps, m.links = [copy.copy(x) for x in self.pumps], [copy.copy(x) for x in self.links]
         for x in m.pumps + m.links:
             if x.closure and x.onset > 0:
-                if x.onset > t0:
-                    x.onset -= t0
-                else:
-                    x.onset = 0.0
+                x.onset = max(x.onset - t0, 0.0)
+        for lk in m.links:
+            lk.since = max(lk.since - t0, 0.0)
         return m
 
     # ---- names ------------------------------------------------------------------------
@@ -407,6 +412,9 @@ class PlantModel:
                 raise CivicError(f"{where}: {x.name}: closure must lie in [0, 1]")
             if not (x.onset >= 0 and math.isfinite(x.onset)):
                 raise CivicError(f"{where}: {x.name}: onset must be a time >= 0 s")
+        for lk in self.links:
+            if not (lk.since >= 0 and math.isfinite(lk.since)):
+                raise CivicError(f"{where}: {lk.name}: since must be a time >= 0 s")
         for v in self.valves:
             if v.input not in inputs:
                 raise CivicError(f"{where}: valve {v.name}: unknown input {v.input!r}")

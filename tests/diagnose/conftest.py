@@ -33,6 +33,8 @@ def make_fault(nominal, name):
         m.links.append(Link("leak", from_="T1", to="T4", coeff=0.012, law="orifice"))
     elif name == "leak_T2":
         m.links.append(Link("leak", from_="T2", to="T4", coeff=0.010, law="orifice"))
+    elif name == "leak_T3_from300":
+        m.links.append(Link("leak", from_="T3", to="T4", coeff=0.012, since=300.0))
     elif name == "leak_T1_small_out":
         m.links.append(Link("leak", from_="T1", to="outside", coeff=0.002, law="orifice"))
     elif name == "spill_T2":

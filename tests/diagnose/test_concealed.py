@@ -44,11 +44,28 @@ def test_concealed_fault_found(closed_loop_case, nominal, name, mech, comp, par,
     assert abs(fitted[par] - value) <= tol * abs(value), fitted
     if mech == "leak":       # where the water goes: the measured total tells T4 from outside
         assert fitted["to"] == ("outside" if name.endswith("_out") else "T4"), fitted
+        assert "since" not in fitted, fitted       # there from the start
     if name in ("leak_T1_small_out", "spill_T2"):
         assert len(d.findings) == 1, [f["mechanism"].label for f in d.findings]
     # significant on held-out data, and the held-out error really falls
     assert top["dbic"] < -10 and top["gain"] > 0.3
     assert d.final.val_sse < 0.7 * d.base.val_sse
+
+
+def test_leak_that_opens_mid_run_is_dated(closed_loop_case, nominal):
+    """A T3 leak that opens 300 s into the record: a leak from then on (its onset bracketed, its
+    coefficient the leak's, not the record's average), active from there; the report says so."""
+    from civic.diagnose.report import build_report
+
+    rec = closed_loop_case("leak_T3_from300")
+    d = diagnose(nominal, rec)
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("leak", "T3")]
+    p = d.final_all.mechanisms[0].values()
+    assert p["to"] == "T4" and abs(p["c"] - 0.012) < 0.1 * 0.012, p
+    assert p["not_before"] - 5.0 <= 300.0 <= p["not_after"] + 5.0 and p["not_after"] - p["not_before"] <= 150.0, p
+    rep = build_report(d, rec)["findings"][0]
+    assert rep["intervals"] == [[p["since"], pytest.approx(600.0, abs=0.5)]]
+    assert f"from {p['since']:g} s on" in rep["evidence"]
 
 
 def test_clean_plant_no_alarm(closed_loop_case, nominal):

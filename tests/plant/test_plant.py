@@ -174,6 +174,29 @@ def test_closure_from_its_onset_on(plant, tmp_path):
             bad.validate()
 
 
+def test_link_since_passes_nothing_before(plant, tmp_path):
+    """A link with `since` (a leak that opened) passes nothing before that time and is the plain
+    link after it; the model file keeps it."""
+    rng = np.random.default_rng(6)
+    n, k = 900, 400
+    t = np.arange(n) * plant.dt
+    u = random_inputs(n, rng)
+    x0 = {"T1": 6.0, "T2": 5.0, "T3": 4.0, "T4": 25.0}
+    leaky = plant.copy()
+    leaky.links.append(Link("leak", from_="T3", to="outside", coeff=0.05))
+    late = leaky.copy()
+    late.find("link", "leak").since = k * plant.dt
+    run = simulate(late, t, u, x0)
+    np.testing.assert_array_equal(run["volumes"][:k + 1], simulate(plant, t, u, x0)["volumes"][:k + 1])
+    assert run["outside"][k] == 0.0 and run["outside"][-1] > 0.5
+    at = {**{tk: run["volumes"][k, i] for i, tk in enumerate(plant.tank_names)},
+          **{v.name: run["openings"][k, j] for j, v in enumerate(plant.valves)}}
+    rest = simulate(leaky, t[k:] - t[k], {key: val[k:] for key, val in u.items()}, at)
+    np.testing.assert_allclose(run["volumes"][k:], rest["volumes"], atol=1e-12)
+    late.to_toml(tmp_path / "late.toml")
+    assert PlantModel.from_toml(tmp_path / "late.toml").find("link", "leak").since == k * plant.dt
+
+
 def test_sensor_characteristic_reads_inverts_and_round_trips(tmp_path):
     """y = gain*level**exponent + offset: the simulator reads through it, the initial state
     inverts it, the model file keeps it (and leaves the linear default out)."""

@@ -23,15 +23,15 @@ class Closure(Mechanism):
         """Where the localisation found a pump or link whose flow the residual follows by a
         larger share from a time on (`Localisation.onsets`), that share a loss."""
         out = []
-        for comp, (t0, z, share, after) in getattr(loc, "onsets", {}).items():
+        for comp, (t0, z, share, lo, hi) in getattr(loc, "onsets", {}).items():
             if z >= ONSET_Z and share > 1.5 * CAL_SPREAD:
                 out.append(cls(comp, {"closure": float(min(share, 0.9))}, {"closure": (0.0, 0.95)},
-                               {"onset": t0, "not_before": after}))
+                               {"onset": t0, "not_before": lo, "not_after": hi}))
         return out
 
     @property
     def n_params(self) -> int:
-        return 2      # the closure and its onset; `not_before` only brackets the onset
+        return 2      # the closure and its onset; `not_before`, `not_after` only bracket the onset
 
     def active_rows(self, model, volumes):
         return np.arange(len(volumes)) * model.dt >= self.fixed["onset"]
@@ -40,8 +40,14 @@ class Closure(Mechanism):
         return p["closure"] <= 1.5 * CAL_SPREAD      # within calibration territory
 
     def describe(self, p):
-        when = f"from {p['onset']:g} s on"
-        if p.get("not_before", p["onset"]) < p["onset"] - 1e-9:
-            when += f" (it carried no flow from {p['not_before']:g} s: the change came in between)"
-        return (f"{self.component} passes {100 * p['closure']:.0f} % less {when}: a manual valve partly "
-                "closed, a clog; a fault switched on mid-run")
+        return (f"{self.component} passes {100 * p['closure']:.0f} % less {dated(p, 'onset')}, as a manual "
+                "valve partly closed or a clog would (a fault switched on mid-run)")
+
+
+def dated(p: dict, key: str) -> str:
+    """'from T s on', and the bracket the data give the time (`not_before`, `not_after`)."""
+    lo, hi = p.get("not_before", p[key]), p.get("not_after", p[key])
+    text = f"from {p[key]:g} s on"
+    if hi - lo > 1e-9:
+        text += f" (the change came between {lo:g} and {hi:g} s)"
+    return text

@@ -1,9 +1,13 @@
-"""Leak: an extra orifice from a tank to a lower tank or outside, q = c*sqrt(h)."""
+"""Leak: an extra orifice from a tank to a lower tank or outside, q = c*sqrt(h), from the start or
+from a time on (one that opened mid-run)."""
 from __future__ import annotations
+
+import numpy as np
 
 from civic.plant.model import OUTSIDE, Link
 
 from .base import Mechanism, lower_tanks
+from .closure import ONSET_Z, dated
 
 
 NEGLIGIBLE_SHARE = 0.002
@@ -17,7 +21,7 @@ class Leak(Mechanism):
         while any(lk.name == name for lk in model.links):
             name += "_"
         model.links.append(Link(name=name, from_=self.component, to=p["to"], coeff=float(p["c"]),
-                                law="orifice"))
+                                law="orifice", since=float(p.get("since", 0.0))))
 
     @classmethod
     def candidates(cls, model, loc):
@@ -31,7 +35,22 @@ class Leak(Mechanism):
                        for lk in model.links):
                     continue  # an orifice already there: a larger one is a `coefficient` finding
                 out.append(cls(tank, {"c": 0.02 * cmax}, {"c": (0.0, cmax)}, {"to": dest}))
+                # one that opened mid-run, where the tank's balance starts losing water by
+                # c*sqrt(h) (`Localisation.leak_onsets`): from that time on
+                t0, z, c, lo, hi = getattr(loc, "leak_onsets", {}).get(tank, (0.0,) * 5)
+                if z >= ONSET_Z and c > 0:
+                    out.append(cls(tank, {"c": float(min(c, cmax))}, {"c": (0.0, cmax)},
+                                   {"to": dest, "since": t0, "not_before": lo, "not_after": hi}))
         return out
+
+    @property
+    def n_params(self) -> int:
+        return len(self.params) + ("since" in self.fixed)    # `not_before`, `not_after` bracket `since`
+
+    @property
+    def label(self) -> str:
+        since = f" from {self.fixed['since']:g} s" if "since" in self.fixed else ""
+        return f"{self.name}({self.component}->{self.fixed['to']}{since})"
 
     def negligible(self, p, model):
         # 0.2 % of the largest coefficient: a 0.002 leak beside 0.3 links still drains ~2 L in
@@ -39,5 +58,9 @@ class Leak(Mechanism):
         ref = max([lk.coeff for lk in model.links] + [0.0])
         return p["c"] < NEGLIGIBLE_SHARE * ref
 
+    def active_rows(self, model, volumes):
+        return np.arange(len(volumes)) * model.dt >= self.fixed["since"] if "since" in self.fixed else None
+
     def describe(self, p):
-        return f"q = {p['c']:.4g}*sqrt(h) from {self.component} to {p['to']}"
+        when = f", {dated(p, 'since')}" if "since" in p else ""
+        return f"q = {p['c']:.4g}*sqrt(h) from {self.component} to {p['to']}{when}"

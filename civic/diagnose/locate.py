@@ -287,16 +287,16 @@ def _regimes(model: PlantModel, rec: Recording, R: np.ndarray, sigma: np.ndarray
 
 
 def change_point(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) -> tuple | None:
-    """(time, z, step, not before, not after) of the likeliest change, from a time on, in how a tank's balance residual
-    `r` follows the flow `q` through one component (both per window; rows of 0 residual carry no
-    information): r = a q before, b q after, step = b - a, z = the step in standard errors. A line
-    clogged or a manual valve partly closed mid-run changes the flow it passes by a share of
-    itself, so the residual steps where the component carries flow, not while it is shut
-    (windows below IDLE_SHARE of its 90th-percentile flow are left out). The change came
-    between `not before` and `not after`: the window ends around every split whose likelihood
-    ratio to the best is within ONSET_LR, stretched over the windows without flow next to
-    them. The split stays ONSET_EDGE of the flow's weight inside either end (nearer: a
-    constant factor)."""
+    """(time, z, step, not before, not after) of the likeliest change, from a time on, in how a
+    tank's balance residual `r` follows the flow `q` through one component (both per window;
+    rows of 0 residual carry no information): r = a q before, b q after, step = b - a, z = the
+    step in standard errors. A line clogged or a manual valve partly closed mid-run changes the
+    flow it passes by a share of itself, so the residual steps where the component carries
+    flow, not while it is shut (windows below IDLE_SHARE of its 90th-percentile flow are left
+    out). The change came between `not before` and `not after`: the window ends around every
+    split whose likelihood ratio to the best is within ONSET_LR, stretched over the windows
+    without flow next to them. The split stays ONSET_EDGE of the flow's weight inside either
+    end (nearer: a constant factor)."""
     # a window whose flow is a trace of the typical (a valve closing on its time constant)
     # tells nothing about the share either
     idx = np.flatnonzero((r != 0.0) & (np.abs(q) > IDLE_SHARE * np.percentile(np.abs(q), 90)))

@@ -124,6 +124,17 @@ def tanks_touching(model: PlantModel, tank: str) -> set[str]:
 
 
 RIM_SHARE = 0.02   # a plateau within 2 % below a tank's rim is at the rim
+ONSET_Z = 5.0      # a change point (Localisation.onsets) this many standard errors: worth a fit
+
+
+def dated(p: dict, key: str) -> str:
+    """'from T s on' for a mechanism switched on at p[key], with the bracket the data give that
+    time (`not_before`, `not_after`) when it is not a point."""
+    lo, hi = p.get("not_before", p[key]), p.get("not_after", p[key])
+    text = f"from {p[key]:g} s on"
+    if hi - lo > 1e-9:
+        text += f" (the change came between {lo:g} and {hi:g} s)"
+    return text
 
 
 def below_rim(tank, vol: float) -> bool:

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Mechanism
+from .base import ONSET_Z, Mechanism, dated
 from .coefficient import CAL_SPREAD
-
-ONSET_Z = 5.0     # the step in the component's residual-to-flow ratio, in standard errors, worth a fit
 
 
 class Closure(Mechanism):
@@ -43,11 +41,3 @@ class Closure(Mechanism):
         return (f"{self.component} passes {100 * p['closure']:.0f} % less {dated(p, 'onset')}, as a manual "
                 "valve partly closed or a clog would (a fault switched on mid-run)")
 
-
-def dated(p: dict, key: str) -> str:
-    """'from T s on', and the bracket the data give the time (`not_before`, `not_after`)."""
-    lo, hi = p.get("not_before", p[key]), p.get("not_after", p[key])
-    text = f"from {p[key]:g} s on"
-    if hi - lo > 1e-9:
-        text += f" (the change came between {lo:g} and {hi:g} s)"
-    return text

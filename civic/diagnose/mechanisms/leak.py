@@ -6,8 +6,7 @@ import numpy as np
 
 from civic.plant.model import OUTSIDE, Link
 
-from .base import Mechanism, lower_tanks
-from .closure import ONSET_Z, dated
+from .base import ONSET_Z, Mechanism, dated, lower_tanks
 
 
 NEGLIGIBLE_SHARE = 0.002

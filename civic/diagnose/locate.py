@@ -31,7 +31,7 @@ BLOCK = 6          # rows averaged per block in the lack-of-fit statistic
 FLAG_RATIO = 2.0   # block-mean chi-square / expected above which a column is flagged
 FLAG_Z = 6.0       # |mean| in standard errors above which a column is flagged
 SCAN_MAX = 10.0    # one block-mean chi-square this high (equation error): a *suspect* column
-ONSET_EDGE = 0.05  # a change point this close to either end of the record is a constant offset
+ONSET_EDGE = 0.05  # a change point this close to either end of the record is a constant factor
 ONSET_LR = 6.0     # chi-square units: splits this close to the best one bracket the onset
 IDLE_SHARE = 0.02  # a window passing less than this share of a component's typical flow: it is shut
 TAIL_RMS = 1.4     # rms this far above the robust (median-based) sigma: heavy tails, i.e. a
@@ -295,8 +295,9 @@ def change_point(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) 
     flow, not while it is shut (windows below IDLE_SHARE of its 90th-percentile flow are left
     out). The change came between `not before` and `not after`: the window ends around every
     split whose likelihood ratio to the best is within ONSET_LR, stretched over the windows
-    without flow next to them. The split stays ONSET_EDGE of the flow's weight inside either
-    end (nearer: a constant factor)."""
+    without flow next to them. The split leaves ONSET_EDGE of the windows with flow on either
+    side (nearer: a constant factor; not of the flow's weight: a loop that drives a clogged
+    line harder after the onset would push the split late)."""
     # a window whose flow is a trace of the typical (a valve closing on its time constant)
     # tells nothing about the share either
     idx = np.flatnonzero((r != 0.0) & (np.abs(q) > IDLE_SHARE * np.percentile(np.abs(q), 90)))
@@ -305,7 +306,8 @@ def change_point(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) 
     x, y = q[idx], r[idx]
     sxx, sxy = np.cumsum(x * x), np.cumsum(x * y)
     w1, w2 = sxx[:-1], sxx[-1] - sxx[:-1]
-    ok = (w1 >= ONSET_EDGE * sxx[-1]) & (w2 >= ONSET_EDGE * sxx[-1])
+    k = np.arange(1, idx.size)              # windows before each split
+    ok = (k >= ONSET_EDGE * idx.size) & (idx.size - k >= ONSET_EDGE * idx.size) & (w1 > 0) & (w2 > 0)
     if not ok.any():
         return None
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -252,10 +252,9 @@ class EquationError:
             if model.pumps else np.zeros((n1, 0))
         return np.concatenate((V[:-1], V[1:])), np.concatenate((A[:-1], A[1:])), np.concatenate((C, C))
 
-    def through(self, model: PlantModel) -> dict:
+    def through(self, model: PlantModel, V: np.ndarray) -> dict:
         """Litres through each pump and link per window, from its first end to its second, on
-        the measured volumes (spill aside)."""
-        V, _ = self.volumes(model)
+        the measured volumes `V` (`volumes`; spill aside)."""
         fl = plant_flows(model, *self._interval_ends(model, V))
         n1 = self.n - 1
         out = {}

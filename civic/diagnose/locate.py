@@ -446,7 +446,8 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
             loc.max_level[t.name] = cap / t.area
     loc.regimes = _regimes(model, rec, R, sigma, cols, engine.row_times, loc.flagged, engine.dt)
     if engine.kind == "equation" and not engine.short:
-        q = engine.through(model)
+        V, _ = engine.volumes(model)
+        q = engine.through(model, V)
         for comp in q:
             t = driven_tank(model, comp)
             if t in loc.flagged:
@@ -457,7 +458,6 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
                     sign = -1.0 if any(p.name == comp for p in model.pumps) else 1.0
                     loc.onsets[comp] = (cp[0], cp[1], sign * cp[2], cp[3], cp[4])
         # a leak that opened: the balance starts losing c*sqrt(h) (the leak law's regressor)
-        V, _ = engine.volumes(model)
         for i, tk in enumerate(model.tanks):
             if tk.name in loc.flagged:
                 h = np.sqrt(np.maximum(V[:, i] / tk.area, 0.0))

@@ -28,6 +28,7 @@ class Mechanism:
     counted = True      # fixed numbers set from the data count in the BIC; False: they are references
     late = False        # edits after the others (it reads what they set, e.g. a fitted sensor map)
     hidden = ()         # fixed entries for the edit only (not in values() nor the report)
+    BRACKET = ("not_before", "not_after")   # fixed entries that bracket a switch-on time: not parameters
 
     # ---- parameter vector ---------------------------------------------------------------
     @property
@@ -50,8 +51,18 @@ class Mechanism:
     def n_params(self) -> int:
         n = len(self.params)
         if self.counted:
-            n += sum(1 for v in self.fixed.values() if isinstance(v, (int, float)) and not isinstance(v, bool))
+            n += sum(1 for k, v in self.fixed.items()
+                     if k not in self.BRACKET and isinstance(v, (int, float)) and not isinstance(v, bool))
         return n
+
+    @property
+    def switched_on(self) -> float | None:
+        """The time it acts from, when it was switched on mid-run (a closure's `onset`, a leak's
+        `since`); None: from the start."""
+        for key in ("onset", "since"):
+            if key in self.fixed:
+                return float(self.fixed[key])
+        return None
 
     def values(self, theta=None) -> dict:
         out = dict(self.params) if theta is None else {k: float(v) for k, v in zip(self.names, theta)}
@@ -80,7 +91,8 @@ class Mechanism:
     def active_rows(self, model: PlantModel, volumes: np.ndarray):
         """Rows of a simulation of `model` (tank volumes, one row per sample) where it acts;
         None: everywhere (a flow law, a sensor map, a coefficient)."""
-        return None
+        t0 = self.switched_on
+        return None if t0 is None else np.arange(len(volumes)) * model.dt >= t0
 
     def negligible(self, p: dict, model: PlantModel) -> bool:
         """True when the fitted effect is too small to matter physically (not a finding,

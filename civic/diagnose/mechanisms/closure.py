@@ -2,8 +2,6 @@
 closed, a clog: the plant's VM1 on the drain, VM2 on the pump line) — a fault switched on mid-run."""
 from __future__ import annotations
 
-import numpy as np
-
 from .base import ONSET_Z, Mechanism, dated
 from .coefficient import CAL_SPREAD
 
@@ -27,17 +25,9 @@ class Closure(Mechanism):
                                {"onset": t0, "not_before": lo, "not_after": hi}))
         return out
 
-    @property
-    def n_params(self) -> int:
-        return 2      # the closure and its onset; `not_before`, `not_after` only bracket the onset
-
-    def active_rows(self, model, volumes):
-        return np.arange(len(volumes)) * model.dt >= self.fixed["onset"]
-
     def negligible(self, p, model):
         return p["closure"] <= 1.5 * CAL_SPREAD      # within calibration territory
 
     def describe(self, p):
         return (f"{self.component} passes {100 * p['closure']:.0f} % less {dated(p, 'onset')}, as a manual "
                 "valve partly closed or a clog would (a fault switched on mid-run)")
-

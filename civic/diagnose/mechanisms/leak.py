@@ -2,8 +2,6 @@
 from a time on (one that opened mid-run)."""
 from __future__ import annotations
 
-import numpy as np
-
 from civic.plant.model import OUTSIDE, Link
 
 from .base import ONSET_Z, Mechanism, dated, lower_tanks
@@ -43,10 +41,6 @@ class Leak(Mechanism):
         return out
 
     @property
-    def n_params(self) -> int:
-        return len(self.params) + ("since" in self.fixed)    # `not_before`, `not_after` bracket `since`
-
-    @property
     def label(self) -> str:
         since = f" from {self.fixed['since']:g} s" if "since" in self.fixed else ""
         return f"{self.name}({self.component}->{self.fixed['to']}{since})"
@@ -56,9 +50,6 @@ class Leak(Mechanism):
         # 10 min (the inventory sees it), so 1 % (the old bar) hid it
         ref = max([lk.coeff for lk in model.links] + [0.0])
         return p["c"] < NEGLIGIBLE_SHARE * ref
-
-    def active_rows(self, model, volumes):
-        return np.arange(len(volumes)) * model.dt >= self.fixed["since"] if "since" in self.fixed else None
 
     def describe(self, p):
         when = f", {dated(p, 'since')}" if "since" in p else ""

@@ -263,13 +263,13 @@ def sweep_case(job) -> dict:
         ok = p["to"] == ("outside" if case.endswith("_out") else "T4")
         named[0] += (p["to"],)
         if case.startswith("leakon"):
-            ok = ok and p.get("not_before", -1.0) - 5.0 <= ONSET <= p.get("not_after", -1.0) + 5.0
+            ok = ok and p.get("not_before", -1.0) <= ONSET <= p.get("not_after", -1.0)
             named[0] += (f"from {p.get('since', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})",)
         else:
             ok = ok and "since" not in p
     if ok and want[0] == "closure":  # and since when
         p = d.findings[0]["fit"].mechanisms[-1].values()
-        ok = p["not_before"] - 5.0 <= ONSET <= p["not_after"] + 5.0
+        ok = p["not_before"] <= ONSET <= p["not_after"]
         named[0] += (f"from {p['onset']:g} s ({p['not_before']:g}-{p['not_after']:g})",)
     return {"case": case, "mag": mag, "seed": seed, "active": active, "ok": ok, "findings": named,
             "flagged": d.loc.flagged}

@@ -62,10 +62,34 @@ def test_leak_that_opens_mid_run_is_dated(closed_loop_case, nominal):
     assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("leak", "T3")]
     p = d.final_all.mechanisms[0].values()
     assert p["to"] == "T4" and abs(p["c"] - 0.012) < 0.1 * 0.012, p
-    assert p["not_before"] - 5.0 <= 300.0 <= p["not_after"] + 5.0 and p["not_after"] - p["not_before"] <= 150.0, p
+    assert p["not_before"] <= 300.0 <= p["not_after"] and p["not_after"] - p["not_before"] <= 150.0, p
     rep = build_report(d, rec)["findings"][0]
     assert rep["intervals"] == [[p["since"], pytest.approx(600.0, abs=0.5)]]
     assert f"from {p['since']:g} s on" in rep["evidence"]
+
+
+def test_pump_line_clogged_early_in_a_long_record_is_dated(nominal):
+    """VM2 at 40 % from 226 s of a 900 s record (one unit of the plant type, the PI loops, both
+    test procedures, as in traces/continuous): three quarters of T1's balance carry the clog, so
+    its own spread hid the step (z 4.5 against the whole residual's spread) and a pump head took
+    its place. Judged against what the two-share fit leaves, the closure is named, dated, alone."""
+    import numpy as np
+
+    from civic.continuous import PI_GAINS
+    from civic.evalsets import spread_unit
+    from civic.plant.control import operation_schedule, run_closed_loop
+    from civic.plant.procedures import apply_faults
+    from civic.plant.simulate import Recording
+
+    onset, run_rng = 225.85, np.random.default_rng(1603614822)
+    unit = spread_unit(nominal, np.random.default_rng(1762396747), 0.04)
+    res = run_closed_loop(unit, 900.0, controller="pi", seed=int(run_rng.integers(2**31)),
+                          schedule=operation_schedule(900.0, run_rng), controller_model=nominal,
+                          onset=(onset, apply_faults(unit, {"vm2": 0.4})), pi_gains=PI_GAINS)
+    d = diagnose(nominal, Recording(res.t, res.signals, res.fields, "VM2 0.4 from 226 s"))
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("closure", "P1")]
+    p = d.final_all.mechanisms[0].values()
+    assert abs(p["closure"] - 0.4) < 0.02 and p["not_before"] <= onset <= p["not_after"], p
 
 
 def test_clean_plant_no_alarm(closed_loop_case, nominal):

@@ -37,3 +37,22 @@ def test_change_point_weighs_windows_not_flow_near_the_ends():
     t, z, share, lo, hi = change_point(r, q, _windows(n), sigma)
     assert t == 300.0 and abs(share + 0.4) < 0.02
     assert lo <= 300.0 <= hi
+
+
+def test_change_point_judges_an_early_step_against_the_spread_left_around_it():
+    """A pump line clogged by 40 % from the first quarter of the record on: the residual's own
+    robust spread (what the diagnosis weighs a balance by) is mostly the fault, yet the step
+    stands out against the noise left around the two-share fit; the bracket stays as wide as
+    that whole-residual spread makes it."""
+    from civic.diagnose.noise import robust_sigma
+
+    rng = np.random.default_rng(5)
+    n, noise = 360, 0.02
+    q = 0.4 + 0.6 * rng.uniform(size=n)
+    r = np.where(np.arange(n) >= 90, -0.4 * q, 0.0) + rng.normal(0.0, noise, n)
+    sigma = robust_sigma(r - np.median(r))              # inflated by the fault: ~7x the noise
+    assert sigma > 5 * noise
+    t, z, share, lo, hi = change_point(r, q, _windows(n), sigma)
+    z_noise = change_point(r, q, _windows(n), noise)[1]      # judged against the true noise
+    assert t == 450.0 and abs(share + 0.4) < 0.02
+    assert z > 0.5 * z_noise and lo <= 450.0 <= hi

@@ -227,6 +227,7 @@ def test_variants_of_the_chosen_mechanism_are_decided_on_both_block_orders(nomin
     variants = finding["variants_both_orders"]            # the evidence of that decision
     assert variants[0]["candidate"] == "sensor_characteristic(L1, bend through the rim)"
     assert variants[0]["heldout_dbic"] < variants[1]["heldout_dbic"] < 0
+    assert finding["heldout_dbic_both_orders"] == variants[0]["heldout_dbic"]   # the chosen one's pooled figure
     assert "on both block orders" in finding["evidence"]
 
 

@@ -294,7 +294,25 @@ class EquationError:
                         if lk.law == "bidirectional":
                             hide[:, a] |= cw[:, b]
                 R[:, :len(model.tanks)] = np.where(hide, 0.0, R[:, :len(model.tanks)])
+        self._hide_starved(model, V, R)
         return R
+
+    def _hide_starved(self, model: PlantModel, V: np.ndarray, R: np.ndarray) -> None:
+        """A pump whose source tank is down to its minimum volume (within the reading's noise
+        band) sucks air in bursts: it passes what flows into the source, not its command's flow,
+        and the measured volume says only roughly when. Those windows carry no information about
+        the pump's two tanks (a large leak out of the circuit drained T4 to it in 8 min, and the
+        starving pump was named a closure)."""
+        tidx = {t.name: i for i, t in enumerate(model.tanks)}
+        for p in model.pumps:
+            if p.from_ not in tidx or p.min_source_volume <= 0:
+                continue
+            low = V[:, tidx[p.from_]] <= p.min_source_volume + self.rim_tol[p.from_]
+            if low.any():
+                cl = np.concatenate(([0], np.cumsum(low)))
+                w = (cl[self.k1 + 1] - cl[self.k0]) > 0
+                cols = [tidx[p.from_]] + ([tidx[p.to]] if p.to in tidx else [])
+                R[np.ix_(w, cols)] = 0.0
 
     def _inventory(self, model: PlantModel, V: np.ndarray, out: np.ndarray, cens: np.ndarray) -> np.ndarray:
         """Per window: mean measured total volume minus (stated total - water the model let out).

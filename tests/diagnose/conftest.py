@@ -41,6 +41,9 @@ def make_fault(nominal, name):
         # a small finite spill into the reservoir: 0.07 L/s per L above an 8.5 L rim
         m.links.append(Link("spill", from_="T2", to="T4", coeff=0.07 * 2.0, law="orifice", exponent=1.0,
                             min_level=8.5 / 2.0))
+    elif name == "leak_T2_out_draining":
+        # large enough to drain the reservoir T4 to the pump's 1 L minimum in the last minutes
+        m.links.append(Link("leak", from_="T2", to="outside", coeff=0.02, law="orifice"))
     elif name == "leak_T3_out":
         m.links.append(Link("leak", from_="T3", to="outside", coeff=0.010, law="orifice"))
     elif name == "offset_L2":

@@ -92,6 +92,20 @@ def test_pump_line_clogged_early_in_a_long_record_is_dated(nominal):
     assert abs(p["closure"] - 0.4) < 0.02 and p["not_before"] <= onset <= p["not_after"], p
 
 
+def test_leak_that_drains_the_reservoir_is_not_blamed_on_the_pump(closed_loop_case, nominal):
+    """A T2 leak to outside large enough to drain T4 to the pump's 1 L minimum from ~440 s on:
+    the starving pump passes what flows into T4, not its command's flow. Those windows carry no
+    information about the pump's tanks; before, a `closure P1` from the starvation was added to
+    the right leak."""
+    rec = closed_loop_case("leak_T2_out_draining")
+    pump = nominal.find("pump", "P1")
+    assert min(rec.signals["L4"]) <= pump.min_source_volume + 0.1     # it did starve (L4 reads litres)
+    d = diagnose(nominal, rec)
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("leak", "T2")]
+    p = d.final_all.mechanisms[0].values()
+    assert p["to"] == "outside" and abs(p["c"] - 0.02) < 0.1 * 0.02, p
+
+
 def test_clean_plant_no_alarm(closed_loop_case, nominal):
     for seed in (11, 12):
         d = diagnose(nominal, closed_loop_case("clean", seed))

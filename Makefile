@@ -11,10 +11,10 @@ export PATH := $(if $(wildcard /opt/p4/bin),/opt/p4/bin:)$(PATH)
 
 venv: $(VENV)/.installed
 
-$(VENV)/.installed: pyproject.toml
+$(VENV)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -c constraints.txt -e '.[test]'
 	touch $@
 
 # Train on the bundled recordings, compare modes leave-one-run-out, replay, score; then the

@@ -267,6 +267,12 @@ class EquationError:
         c = np.concatenate(([0.0], np.cumsum(x)))
         return c[self.k1] - c[self.k0]
 
+    def touched(self, mask: np.ndarray) -> np.ndarray:
+        """Per window, whether any of its samples (both ends) is set in the per-sample `mask`
+        (n values, or n rows of columns)."""
+        c = np.concatenate((np.zeros((1,) + mask.shape[1:], int), np.cumsum(mask, axis=0)))
+        return (c[self.k1 + 1] - c[self.k0]) > 0
+
     def residuals(self, model: PlantModel) -> np.ndarray:
         V, cens = self.volumes(model)
         if self.gap_rows is not None:
@@ -279,14 +285,12 @@ class EquationError:
         if cens.any():
             # a saturated sensor hides its tank's volume: those windows carry no information
             # about that tank, nor about the flows computed from it (its links' neighbours)
-            cc = np.concatenate(([np.zeros(len(model.tanks), int)], np.cumsum(cens, axis=0)))
-            cw = (cc[self.k1 + 1] - cc[self.k0]) > 0
+            cw = self.touched(cens)
             if cw.any():
                 tidx = {t.name: i for i, t in enumerate(model.tanks)}
                 hide = cw.copy()
                 if self.gap_rows is not None:
-                    cg = np.concatenate(([0], np.cumsum(self.gap_rows)))
-                    hide |= ((cg[self.k1 + 1] - cg[self.k0]) > 0)[:, None]
+                    hide |= self.touched(self.gap_rows)[:, None]
                 for lk in model.links:
                     if lk.to != OUTSIDE:
                         a, b = tidx[lk.from_], tidx[lk.to]
@@ -309,8 +313,7 @@ class EquationError:
                 continue
             low = V[:, tidx[p.from_]] <= p.min_source_volume + self.rim_tol[p.from_]
             if low.any():
-                cl = np.concatenate(([0], np.cumsum(low)))
-                w = (cl[self.k1 + 1] - cl[self.k0]) > 0
+                w = self.touched(low)
                 cols = [tidx[p.from_]] + ([tidx[p.to]] if p.to in tidx else [])
                 R[np.ix_(w, cols)] = 0.0
 
@@ -322,8 +325,7 @@ class EquationError:
         left = np.concatenate(([0.0], np.cumsum(out)))          # water gone outside by each sample
         c = np.concatenate(([0.0], np.cumsum(V.sum(axis=1) - (model.total_volume - left))))
         inv = (c[self.k1] - c[self.k0]) / self.W
-        bad = np.concatenate(([0], np.cumsum(cens.any(axis=1))))
-        return np.where((bad[self.k1 + 1] - bad[self.k0]) > 0, 0.0, inv)
+        return np.where(self.touched(cens.any(axis=1)), 0.0, inv)
 
 
 class SimulationError:

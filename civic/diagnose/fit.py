@@ -513,7 +513,8 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
         chosen[:-1] = res.mechanisms[:-1]
         diag.findings.append({"mechanism": cand, "fit": res, "dbic": dbic, "gain": gain,
                               "prev": current, "alternatives": alternatives,
-                              **({"held_out": how} if how else {}), **({"both_orders": both} if both else {})})
+                              **({"held_out": how} if how else {}),
+                              **({"both_orders": both, "dbic_both_orders": pooled[cand.label]} if both else {})})
         current = res
         # later rounds: only what helped on its own in the first round (or shares its component)
         helped = {t["candidate"] for t in diag.tried if t["dbic"] < 0}

@@ -323,7 +323,7 @@ def change_point(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) 
     # fit where that is smaller; the bracket keeps `sigma`, the cautious width.
     a, b = sxy[j] / w1[j], (sxy[-1] - sxy[j]) / w2[j]
     left = robust_sigma(y - np.where(np.arange(idx.size) <= j, a, b) * x)
-    z_step = z[j] * sigma / min(sigma, left) if left > 0 else z[j]
+    z_step = z[j] * max(sigma / left, 1.0)
     return (float(times[idx[j + 1], 0]), float(z_step), float(step[j]), float(times[idx[near[0]], 0]),
             float(times[idx[near[-1] + 1], 1]))
 

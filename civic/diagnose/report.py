@@ -168,9 +168,8 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         if f.get("held_out"):
             findings[-1]["heldout_split"] = "swapped"
         if f.get("both_orders"):
-            own = [v["dbic"] for v in f["both_orders"] if v["candidate"] == mech.label]
-            if own:      # the pooled evidence the choice was made on, next to the single order's
-                findings[-1]["heldout_dbic_both_orders"] = round(own[0], 2)
+            # the pooled evidence the choice was made on, next to the single order's
+            findings[-1]["heldout_dbic_both_orders"] = round(f["dbic_both_orders"], 2)
             findings[-1]["variants_both_orders"] = [{"candidate": v["candidate"], "heldout_dbic": round(v["dbic"], 2)}
                                                     for v in f["both_orders"]]
         if "heldout_rmse_without" in f:

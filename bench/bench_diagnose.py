@@ -152,6 +152,7 @@ SWEEP = {
     "sensorchar_L2": ("sensor_characteristic", "L2", (0.9, 1.05, 1.1)),  # y = 5**(1-n)*V**n
     "sensorchar_L1": ("sensor_characteristic", "L1", (0.9, 1.05, 1.1)),   # T1 may sit at its rim
     "sensorchar_L3": ("sensor_characteristic", "L3", (1.1,)),
+    "sensorchar_L4": ("sensor_characteristic", "L4", (0.85,)),  # the reservoir: reads 2-5 L low
     "deadzone_P1": ("pump_dead_zone", "P1", (0.03, 0.05)),     # no flow below this command
     "split_T1": ("overflow", "T1", (0.2, 0.5, 0.8)),            # rim 9 L, this share into T4, rest out
     "split_T2": ("overflow", "T2", (0.5,)),                     # rim 8.5 L (bundled setpoints), idem

@@ -91,6 +91,11 @@ def make_fault(nominal, name):
         # there reading 10.77 (above the 10.0 the model gives the rim; seed 11: 60 s at the rim)
         s = m.find("sensor", "L1")
         s.exponent, s.gain = 1.1, 5.0 ** -0.1
+    elif name == "sensorchar_L4":
+        # the reservoir's sensor bent the other way, calibrated at 5 L: at its 13-22 L it reads
+        # 2-5 L low, an offset beyond a quarter of its swing
+        s = m.find("sensor", "L4")
+        s.exponent, s.gain = 0.85, 5.0 ** 0.15
     elif name == "deadzone_P1":
         m.find("pump", "P1").input_offset = 0.05
     elif name == "split_T1":

@@ -16,6 +16,7 @@ CASES = [
     ("flowlaw_V2", "flow_law", "V2", "exponent", 0.7, 0.05),
     ("sensorchar_L2", "sensor_characteristic", "L2", None, None, None),
     ("sensorchar_L1", "sensor_characteristic", "L1", "exponent", 1.1, 0.03),
+    ("sensorchar_L4", "sensor_characteristic", "L4", "exponent", 0.85, 0.05),
     ("deadzone_P1", "pump_dead_zone", "P1", "threshold", 0.05, 0.01),
     ("split_T1", "overflow", "T1", "fraction", 0.5, 0.1),
 ]

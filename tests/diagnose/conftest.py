@@ -96,6 +96,17 @@ def make_fault(nominal, name):
         # 2-5 L low, an offset beyond a quarter of its swing
         s = m.find("sensor", "L4")
         s.exponent, s.gain = 0.85, 5.0 ** 0.15
+    elif name == "sensorchar_L3_seed1":
+        # the sweep's seed-1 plant (bench_diagnose.sweep_plant), L3 bent by 0.85 (calibrated at 5 L)
+        for path, f in (("pump.P1.gain", 1.0335), ("link.V1.coeff", 1.0257), ("link.pipe23.coeff", 1.0378),
+                        ("link.V2.coeff", 1.0080)):
+            m.set(path, float(nominal.get(path)) * f)
+        s = m.find("sensor", "L3")
+        s.exponent, s.gain = 0.85, 5.0 ** 0.15
+    elif name == "leak_T1+deadtime_V2":
+        # two concealed effects at once
+        m.links.append(Link("leak", from_="T1", to="T4", coeff=0.010, law="orifice"))
+        m.find("valve", "V2").dead_time = 2.0
     elif name == "deadzone_P1":
         m.find("pump", "P1").input_offset = 0.05
     elif name == "split_T1":

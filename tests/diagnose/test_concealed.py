@@ -52,6 +52,14 @@ def test_concealed_fault_found(closed_loop_case, nominal, name, mech, comp, par,
     assert d.final.val_sse < 0.7 * d.base.val_sse
 
 
+def test_two_concealed_effects_are_both_named(closed_loop_case, nominal):
+    """A T1 leak and a 2 s dead time on V2 at once: both named (a later finding must hold on both
+    block orders; a real second effect does)."""
+    d = diagnose(nominal, closed_loop_case("leak_T1+deadtime_V2"))
+    assert sorted((f["mechanism"].name, f["mechanism"].component) for f in d.findings) == \
+        [("dead_time", "V2"), ("leak", "T1")]
+
+
 def test_leak_that_opens_mid_run_is_dated(closed_loop_case, nominal):
     """A T3 leak that opens 300 s into the record: a leak from then on (its onset bracketed, its
     coefficient the leak's, not the record's average), active from there; the report says so."""

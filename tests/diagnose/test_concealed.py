@@ -100,6 +100,28 @@ def test_pump_line_clogged_early_in_a_long_record_is_dated(nominal):
     assert abs(p["closure"] - 0.4) < 0.02 and p["not_before"] <= onset <= p["not_after"], p
 
 
+def test_leak_opening_as_a_drain_test_starts_is_dated_in_the_fitted_model(nominal):
+    """A T3 leak from 300 s under the PI loops, whose drain test runs V2 wide open from 301 to
+    316 s: on the nominal calibration V2's coefficient takes the leak's 4 % there and the change
+    point steps at 315 s (bracket 305-325 s). Dated again in the fitted model: 300 s."""
+    from civic.plant.control import run_closed_loop
+    from civic.plant.model import Link
+    from civic.plant.simulate import Recording
+
+    plant = nominal.copy()
+    for path, f in (("pump.P1.gain", 0.983), ("link.V1.coeff", 1.012), ("link.pipe23.coeff", 1.017),
+                    ("link.V2.coeff", 1.0056)):      # the sweep's seed-91 plant
+        plant.set(path, float(nominal.get(path)) * f)
+    plant.links.append(Link("leak", from_="T3", to="T4", coeff=0.012, since=300.0))
+    res = run_closed_loop(plant, 600.0, controller="pi", seed=91, noise=True, controller_model=nominal)
+    assert any(op[1] == "drain_test:run" and 300.0 <= op[0] <= 302.0 for op in res.operation)
+    d = diagnose(nominal, Recording(res.t, res.signals, res.fields, "T3 leak from 300 s"))
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("leak", "T3")]
+    p = d.final_all.mechanisms[0].values()
+    assert abs(p["since"] - 300.0) <= 5.0 and p["not_before"] <= 300.0 <= p["not_after"], p
+    assert d.findings[0]["fit"].mechanisms[-1].switched_on == p["since"]     # the report's intervals
+
+
 def test_leak_that_drains_the_reservoir_is_not_blamed_on_the_pump(closed_loop_case, nominal):
     """A T2 leak to outside large enough to drain T4 to the pump's 1 L minimum from ~440 s on:
     the starving pump passes what flows into T4, not its command's flow. Those windows carry no

@@ -74,6 +74,10 @@ class Mechanism:
                        dict(self.bounds), dict(self.fixed))
         return m
 
+    def with_fixed(self, **fixed) -> "Mechanism":
+        """A copy with some fixed values changed (e.g. the time it was switched on)."""
+        return type(self)(self.component, dict(self.params), dict(self.bounds), {**self.fixed, **fixed})
+
     # ---- model edit -----------------------------------------------------------------------
     def apply(self, model: PlantModel, theta=None) -> PlantModel:
         """A copy of `model` that contains this mechanism (parameters `theta` or the current ones)."""

@@ -664,7 +664,7 @@ def _redate(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], start: FitRe
     own records follow."""
     rows = np.ones_like(prob.engine.train)
     starts = prob.engine.row_times[:, 0]
-    width = float(np.median(np.diff(starts))) if starts.size > 1 else 0.0
+    width = float(prob.engine.row_times[0, 1] - starts[0])       # one window
     out = list(mechs)
     for i, m in enumerate(mechs):
         key = next((k for k in ("onset", "since") if k in m.fixed), None)
@@ -684,10 +684,9 @@ def _redate(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], start: FitRe
         dated = {key: best, "not_before": min(lo, float(near[0]) - width),
                  "not_after": max(hi, float(near[-1]) + width)}
         out[i] = m.with_fixed(**dated)
-        for f in diag.findings:
-            for x in (f["mechanism"], f["fit"].mechanisms[-1]):
-                if x.name == m.name and x.component == m.component and key in x.fixed:
-                    x.fixed.update(dated)
+        # the forward selection's i-th finding is this mechanism (its label, its intervals)
+        for x in (diag.findings[i]["mechanism"], diag.findings[i]["fit"].mechanisms[-1]):
+            x.fixed.update(dated)
     return out
 
 

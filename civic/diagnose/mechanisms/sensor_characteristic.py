@@ -80,16 +80,18 @@ class SensorCharacteristic(Mechanism):
 
     def tied(self) -> "SensorCharacteristic":
         """The two-parameter variant (exponent, offset; gain tied at the readings' middle)."""
-        return type(self)(self.component, {k: v for k, v in self.params.items() if k != "gain"},
-                          {k: v for k, v in self.bounds.items() if k != "gain"}, dict(self.fixed))
+        return self._without("gain")
 
     def through_zero(self) -> "SensorCharacteristic":
         """The two-parameter variant through the model's zero (exponent, gain; an empty tank reads
         what the model says): a sensor calibrated far from the levels it is seen at. The map tied at
         the middle of those levels cannot hold it: a reservoir sensor bent by 0.85, exact at 5 L and
         seen at 13-22 L, got exponent 0.73 and an offset of -2.9 L."""
-        return type(self)(self.component, {k: v for k, v in self.params.items() if k != "offset"},
-                          {k: v for k, v in self.bounds.items() if k != "offset"}, dict(self.fixed))
+        return self._without("offset")
+
+    def _without(self, name: str) -> "SensorCharacteristic":
+        return type(self)(self.component, {k: v for k, v in self.params.items() if k != name},
+                          {k: v for k, v in self.bounds.items() if k != name}, dict(self.fixed))
 
     def values(self, theta=None) -> dict:
         out = super().values(theta)

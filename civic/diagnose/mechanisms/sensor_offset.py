@@ -4,6 +4,8 @@ from __future__ import annotations
 from ..compare import INVENTORY_BAND, INVENTORY_SPREAD
 from .base import Mechanism, sensors_of, tanks_touching
 
+OFFSET_FLOOR = 1e-3  # in the sensor's unit: below this no sensor without noise or resolution reads off
+
 
 def drives_no_flow(model, tank: str) -> bool:
     """No link leaves the tank and none exchanges both ways with it (a reservoir): its
@@ -45,7 +47,7 @@ class SensorOffset(Mechanism):
             litres = abs(p["offset"]) / (s.gain or 1.0) * (model.tank(s.tank).area if s.quantity == "level" else 1.0)
             if litres <= band:
                 return True
-        return abs(p["offset"]) < max(2.0 * s.noise_sigma, 2.0 * s.resolution, 1e-3 * self.fixed.get("span", 1.0))
+        return abs(p["offset"]) < max(2.0 * s.noise_sigma, 2.0 * s.resolution, OFFSET_FLOOR)
 
     def describe(self, p):
         return f"{self.component} reads {p['offset']:+.4g} off"

@@ -22,7 +22,10 @@ Robustness sweep alone, every case printed:
 concealed mechanism of the catalogue (one to three magnitudes, small but significant) or none;
 prints per case and the rates: clean cases without alarm, and cases where the first
 finding names the right mechanism and component and nothing else is found, counting only cases where the
-mechanism was active (a rim or a clip the levels never reach changes nothing).
+mechanism was active (a rim or a clip the levels never reach changes nothing). Each case also
+prints how far its effect moves the open-loop replay beyond what calibrating the datasheet's
+coefficients explains (in sensor noises); a miss below the issue's bar of 3 is marked as such
+in the tables (the calibration spread of +-4 % can absorb a small effect whole).
 CIVIC_BENCH_CONTROLLER=pi runs the sweep under the PI loops instead of the MPC (the
 supervisor's setpoints and tests are the same).
 """
@@ -164,6 +167,7 @@ SWEEP = {
     "clean": (None, None, (0.0,)),
 }
 ONSET = 300.0   # s into the 600 s record
+EXCESS_BAR = 3.0  # sensor noises: an effect the calibrated datasheet replays closer than this is below the issue's bar
 
 NEW_KINDS = ("flowlaw", "sensorchar", "deadzone", "split")
 
@@ -273,7 +277,23 @@ def sweep_case(job) -> dict:
         ok = p["not_before"] <= ONSET <= p["not_after"]
         named[0] += (f"from {p['onset']:g} s ({p['not_before']:g}-{p['not_after']:g})",)
     return {"case": case, "mag": mag, "seed": seed, "active": active, "ok": ok, "findings": named,
-            "flagged": d.loc.flagged}
+            "flagged": d.loc.flagged, "excess": replay_excess(plant, d.model_calibrated, res)}
+
+
+def replay_excess(plant, calibrated, res) -> float:
+    """How far the effect moves the open-loop replay beyond what calibrating the datasheet's
+    coefficients explains: the largest RMS difference, over the level sensors, between the real
+    plant and the diagnosis's calibrated datasheet model replayed on the applied inputs from the
+    true initial state, in units of that sensor's noise (the issue's bar is 3)."""
+    import numpy as np
+
+    from civic.plant.simulate import simulate
+
+    x0 = {n: float(v) for n, v in zip(plant.tank_names, res.volumes[0])}
+    inputs = {k: res.signals[k] for k in plant.input_names}
+    real, cal = simulate(plant, res.t, inputs, x0), simulate(calibrated, res.t, inputs, x0)
+    return max(float(np.sqrt(np.mean((real[s.name] - cal[s.name]) ** 2))) / s.noise_sigma
+               for s in plant.sensors if s.noise_sigma > 0)
 
 
 def robustness(seeds: list[int], cases: list[str] | None = None, quiet: bool = False) -> int:
@@ -283,7 +303,7 @@ def robustness(seeds: list[int], cases: list[str] | None = None, quiet: bool = F
     jobs = [(c, mag, s) for c, (_, _, mags) in SWEEP.items() if not cases or c in cases
             for mag in mags for s in seeds]
 
-    rates = defaultdict(lambda: [0, 0, 0])
+    rates = defaultdict(lambda: [0, 0, 0, 0])
     with Pool(int(os.environ.get("CIVIC_BENCH_PROCS", "2"))) as pool:
         for r in pool.imap_unordered(sweep_case, jobs):
             k = rates[(r["case"], r["mag"])]
@@ -292,18 +312,21 @@ def robustness(seeds: list[int], cases: list[str] | None = None, quiet: bool = F
             else:
                 k[0] += r["ok"]
                 k[1] += 1
+                k[3] += not r["ok"] and r["case"] != "clean" and r["excess"] < EXCESS_BAR
             if quiet and r["ok"]:
                 continue
             print(f"{'ok ' if r['ok'] else 'BAD'} {r['case']} {r['mag']:g} seed {r['seed']}"
-                  f"{'' if r['active'] else ' (inactive)'}: {r['findings'] or 'no finding'}", flush=True)
+                  f"{'' if r['active'] else ' (inactive)'}: {r['findings'] or 'no finding'}"
+                  f"  [replay {r['excess']:.1f} sigma beyond calibration]", flush=True)
     for title, new in (("catalogue families (closed-loop four-tank)", False),
                        ("real-rig physics on the closed-loop four-tank plant (issue #20)", True)):
         rows = [(k, v) for k, v in sorted(rates.items()) if (k[0].split("_")[0] in NEW_KINDS) == new]
         if not rows:
             continue
         print(f"\n{title}: right mechanism and component first, nothing else found (clean: no alarm)")
-        for (case, mag), (good, n, idle) in rows:
-            print(f"  {case:16s} {mag:6g}: {good}/{n}" + (f" ({idle} inactive)" if idle else ""))
+        for (case, mag), (good, n, idle, below) in rows:
+            print(f"  {case:16s} {mag:6g}: {good}/{n}" + (f" ({idle} inactive)" if idle else "")
+                  + (f" ({below} missed below the {EXCESS_BAR:g} sigma bar)" if below else ""))
     return 0
 
 

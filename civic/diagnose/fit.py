@@ -510,8 +510,9 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
         judged_best, ref_best, _ = best[2]
         if not significant(judged_best, ref_best, min_gain)[0]:
             break
-        (cand, res, (r, ref, how)), both = _decide_on_both_orders(prob, chosen, current, results, best, min_gain)
-        if chosen and not how and not _holds_on_both_orders(prob, chosen, current, cand, min_gain):
+        (cand, res, (r, ref, how)), both, both_fits = _decide_on_both_orders(prob, chosen, current, results, best,
+                                                                             min_gain)
+        if chosen and not how and not _holds_on_both_orders(prob, chosen, current, cand, min_gain, both_fits):
             break
         _, dbic, gain = significant(r, ref, min_gain)      # a candidate returned is significant too
         # what both orders separated from the chosen one is no longer indistinguishable from it
@@ -551,29 +552,32 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
             if not h and significant(r, ref, min_gain)[0]
             and ((c.name, c.component) == (cand.name, cand.component) or r.val_bic - ref.val_bic - top < ALT_DBIC)]
     if len(pool) < 2 or how or prob.engine.short or not isinstance(prob.engine, EquationError):
-        return best, []
+        return best, [], {}
     both = prob.both_orders()
-    ref = prob.evaluate(chosen, start_cal=current.cal, folds=both).val_bic
-    scored = [prob.evaluate(chosen + [x[0]], start_cal=current.cal, starts=_starts(x[0]), folds=both).val_bic - ref
-              for x in pool]
+    ref = prob.evaluate(chosen, start_cal=current.cal, folds=both)
+    fits = {x[0].label: prob.evaluate(chosen + [x[0]], start_cal=current.cal, starts=_starts(x[0]), folds=both)
+            for x in pool}
+    scored = [fits[x[0].label].val_bic - ref.val_bic for x in pool]
     i = int(np.argmin(scored))
     decided = sorted(({"candidate": x[0].label, "dbic": d} for x, d in zip(pool, scored)), key=lambda v: v["dbic"])
-    return (pool[i] if scored[i] < 0 else best), decided
+    return (pool[i] if scored[i] < 0 else best), decided, {"reference": ref, **fits}
 
 
 def _holds_on_both_orders(prob: Problem, chosen: list, current: FitResult, cand: Mechanism,
-                          min_gain: float) -> bool:
+                          min_gain: float, fits: dict) -> bool:
     """A finding after the first must hold on both block orders of a long equation-error record
     (each order's training blocks fitted, the other's judged): significant pooled, and each
     order's held-out SSE falling by at least ORDER_AGREEMENT of the other's. A real second effect
     shows in both; a patch for the first finding's imperfect fit shows in one: an L3 map
     (n = 0.85) took a T2 leak of c = 0.0017 on one order (held-out SSE -19 %) that the other
-    fitted at 0.0003 (-0.7 %)."""
+    fitted at 0.0003 (-0.7 %). `fits`: the both-order fits _decide_on_both_orders made already
+    ("reference" and candidate labels), reused rather than refitted."""
     if prob.engine.short or not isinstance(prob.engine, EquationError):
         return True
     both = prob.both_orders()
-    ref = prob.evaluate(chosen, start_cal=current.cal, folds=both)
-    res = prob.evaluate(chosen + [cand], start_cal=current.cal, starts=_starts(cand), folds=both)
+    ref = fits.get("reference") or prob.evaluate(chosen, start_cal=current.cal, folds=both)
+    res = fits.get(cand.label) or prob.evaluate(chosen + [cand], start_cal=current.cal, starts=_starts(cand),
+                                                folds=both)
     gains = [1 - a / max(b, 1e-300) for a, b in zip(res.fold_sse, ref.fold_sse)]
     return significant(res, ref, min_gain)[0] and min(gains) >= ORDER_AGREEMENT * max(gains)
 

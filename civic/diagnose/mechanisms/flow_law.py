@@ -13,10 +13,11 @@ from civic.plant.model import Link
 from .base import Mechanism
 
 EXPONENT_BOUNDS = (0.15, 2.0)
-# an exponent shift below this is no finding: over the 1:9 span of heads a tank sees, 0.02 bends the
-# flow by 4.5 %, within the coefficients' +-5 % datasheet spread at one head but not along the span.
-# (0.03 missed V2 n = 0.45 where the calibration's trade-off left the fit at 0.473)
-FLOW_LAW_MIN_SHIFT = 0.02
+# an exponent shift below this is no finding: over the 1:9 span of heads a tank sees, 0.01 bends the
+# flow by 2.2 %, about what the sensor noise hides. Held-out significance decides above it: the
+# calibration's trade-off with the link's coefficient leaves a real shift fitted small (V2 n = 0.45
+# fitted 0.473, and 0.482 at held-out BIC -41, held-out SSE -15 %: dropped by the floors 0.03 and 0.02)
+FLOW_LAW_MIN_SHIFT = 0.01
 
 
 class FlowLaw(Mechanism):

@@ -114,8 +114,10 @@ class Calibration:
         return [c for (c, _), f in zip(self.paths, factors) if f <= self.lo + tol or f >= self.hi - tol]
 
     def report(self, factors) -> dict:
-        return {path: {"nominal": nom, "value": round(nom * float(f), 6), "change_pct": round((f - 1) * 100, 2)}
-                for (_, path), nom, f in zip(self.paths, self.nominal, factors)}
+        edge = set(self.pinned(factors))
+        return {path: {"nominal": nom, "value": round(nom * float(f), 6), "change_pct": round((f - 1) * 100, 2),
+                       "at_spread_edge": c in edge}
+                for (c, path), nom, f in zip(self.paths, self.nominal, factors)}
 
 
 @dataclass

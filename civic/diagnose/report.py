@@ -358,6 +358,13 @@ def print_summary(report: dict, console=None) -> None:
     console = console or Console()
     head = "[bold red]MISMATCH[/]" if report["mismatch"] else "[bold green]OK[/]"
     console.print(f"{head}: {report['verdict']}")
+    if not report["findings"]:
+        # the calibration needed all of the datasheet's spread: what it absorbed may be more
+        for path, c in report["calibration"].items():
+            if c.get("at_spread_edge"):
+                console.print(f"note: the calibration puts {path} at {c['change_pct']:+.1f} %, the edge of the "
+                              "datasheet's spread: a coefficient off by more, or an effect that scales that flow "
+                              "(a pump head, a closure, a leak beside it), which this record cannot tell apart")
     if report["findings"]:
         t = Table(title="findings (most important first)")
         for c in ("#", "mechanism", "component", "parameters", "held-out dBIC", "intervals (s)"):

@@ -110,6 +110,13 @@ def make_fault(nominal, name):
                         ("link.V2.coeff", 1.0080)):
             m.set(path, float(nominal.get(path)) * f)
         m.find("link", "V2").exponent = 0.45
+    elif name == "head_P1_absorbed":
+        # the sweep's seed-94 plant, a pump head of 0.02 per dm: at T1's 2.5-4.7 dm it takes 5-9 %
+        # of the flow, which the calibration's pump gain takes whole at the -5 % edge
+        for path, f in (("pump.P1.gain", 1.0273), ("link.V1.coeff", 0.9817), ("link.pipe23.coeff", 1.0126),
+                        ("link.V2.coeff", 0.9975)):
+            m.set(path, float(nominal.get(path)) * f)
+        m.find("pump", "P1").head_coeff = 0.02
     elif name == "leak_T1+deadtime_V2":
         # two concealed effects at once
         m.links.append(Link("leak", from_="T1", to="T4", coeff=0.010, law="orifice"))

@@ -55,6 +55,26 @@ def test_pinned_coefficient_makes_its_tank_a_suspect(closed_loop_case, nominal):
     assert "pinned V2's coefficient" in rep["findings"][0]["evidence"]
 
 
+def test_calibration_at_the_spread_edge_is_said_when_nothing_is_found(closed_loop_case, nominal):
+    """A pump head the calibration's pump gain absorbs at the -5 % edge (1.5 sigmas of the replay
+    left): no finding, and the summary says the record cannot tell that gain from a flow effect."""
+    from io import StringIO
+
+    from rich.console import Console
+
+    from civic.diagnose.report import build_report, print_summary
+
+    rec = closed_loop_case("head_P1_absorbed", seed=94)
+    d = diagnose(nominal, rec)
+    rep = build_report(d, rec)
+    assert not rep["findings"]
+    edge = [p for p, c in rep["calibration"].items() if c["at_spread_edge"]]
+    assert edge == ["pump.P1.gain"] and rep["calibration"]["pump.P1.gain"]["change_pct"] == -5.0
+    out = StringIO()
+    print_summary(rep, Console(file=out, width=300))
+    assert "pump.P1.gain at -5.0 %, the edge of the datasheet's spread" in out.getvalue()
+
+
 def test_unflagged_record_suspects_every_tank(closed_loop_case, nominal):
     """pipe23's flow exponent 0.55 leaves every balance within its noise band (nothing flagged,
     no coefficient pinned): every tank is a suspect and the held-out data name the flow law,

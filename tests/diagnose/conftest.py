@@ -25,6 +25,16 @@ def real_plant(nominal):
     return m
 
 
+SWEEP_SEED1 = (1.0335, 1.0257, 1.0378, 1.0080)   # the sweep's seed-1 draw
+
+
+def draw_calibration(m, nominal, factors):
+    """One draw of the bench sweep's calibration spread (bench_diagnose.sweep_plant): factors on
+    P1's gain and the V1, pipe23 and V2 coefficients."""
+    for path, f in zip(("pump.P1.gain", "link.V1.coeff", "link.pipe23.coeff", "link.V2.coeff"), factors):
+        m.set(path, float(nominal.get(path)) * f)
+
+
 def make_fault(nominal, name):
     from civic.plant.model import Link, Overflow
 
@@ -69,15 +79,11 @@ def make_fault(nominal, name):
         m.find("link", "V2").exponent = 0.7
     elif name == "flowlaw_pipe23_subtle":
         # the sweep's seed-5 plant (bench_diagnose.sweep_plant): with seed 5 no balance is flagged
-        for path, f in (("pump.P1.gain", 0.9628), ("link.V1.coeff", 1.0263), ("link.pipe23.coeff", 1.006),
-                        ("link.V2.coeff", 1.0108)):
-            m.set(path, float(nominal.get(path)) * f)
+        draw_calibration(m, nominal, (0.9628, 1.0263, 1.006, 1.0108))
         m.find("link", "pipe23").exponent = 0.55
     elif name == "saturation_L1_training_only":
         # the sweep's seed-13 plant: under seed 13's setpoints T1 passes 9 L once, in a training block
-        for path, f in (("pump.P1.gain", 0.9848), ("link.V1.coeff", 0.9711), ("link.pipe23.coeff", 0.9644),
-                        ("link.V2.coeff", 0.9781)):
-            m.set(path, float(nominal.get(path)) * f)
+        draw_calibration(m, nominal, (0.9848, 0.9711, 0.9644, 0.9781))
         m.find("sensor", "L1").max = 9.0
     elif name == "flowlaw_V2_pinned":
         # a milder exponent on a coefficient 1.4 % low: calibrated, V2's coefficient pins at -5 %
@@ -98,24 +104,18 @@ def make_fault(nominal, name):
         s.exponent, s.gain = 0.85, 5.0 ** 0.15
     elif name == "sensorchar_L3_seed1":
         # the sweep's seed-1 plant (bench_diagnose.sweep_plant), L3 bent by 0.85 (calibrated at 5 L)
-        for path, f in (("pump.P1.gain", 1.0335), ("link.V1.coeff", 1.0257), ("link.pipe23.coeff", 1.0378),
-                        ("link.V2.coeff", 1.0080)):
-            m.set(path, float(nominal.get(path)) * f)
+        draw_calibration(m, nominal, SWEEP_SEED1)
         s = m.find("sensor", "L3")
         s.exponent, s.gain = 0.85, 5.0 ** 0.15
     elif name == "flowlaw_V2_seed1":
         # the sweep's seed-1 plant, V2's drain with exponent 0.45: calibrated, V2's coefficient
         # trades with the exponent, fitted 0.48
-        for path, f in (("pump.P1.gain", 1.0335), ("link.V1.coeff", 1.0257), ("link.pipe23.coeff", 1.0378),
-                        ("link.V2.coeff", 1.0080)):
-            m.set(path, float(nominal.get(path)) * f)
+        draw_calibration(m, nominal, SWEEP_SEED1)
         m.find("link", "V2").exponent = 0.45
     elif name == "head_P1_absorbed":
         # the sweep's seed-94 plant, a pump head of 0.02 per dm: at T1's 2.5-4.7 dm it takes 5-9 %
         # of the flow, which the calibration's pump gain takes whole at the -5 % edge
-        for path, f in (("pump.P1.gain", 1.0273), ("link.V1.coeff", 0.9817), ("link.pipe23.coeff", 1.0126),
-                        ("link.V2.coeff", 0.9975)):
-            m.set(path, float(nominal.get(path)) * f)
+        draw_calibration(m, nominal, (1.0273, 0.9817, 1.0126, 0.9975))
         m.find("pump", "P1").head_coeff = 0.02
     elif name == "leak_T1+deadtime_V2":
         # two concealed effects at once

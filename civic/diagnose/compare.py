@@ -125,6 +125,12 @@ class EquationError:
         # stay at that total less what the model lets out. This is the one check that sees a
         # constant offset on a sensor whose level drives no flow (a reservoir's)
         self.columns = model.tank_names + ([INVENTORY] if model.total_volume is not None else [])
+        # which balances a saturated tank's hidden volume spoils: fixed by the nominal model's links,
+        # so a candidate that adds a link (a leak, a spill) is judged on the rows its reference is
+        # judged on, not credited with the noise of the rows its link would hide
+        tidx = {t.name: i for i, t in enumerate(model.tanks)}
+        self.coupled = [(tidx[lk.from_], tidx[lk.to], lk.law == "bidirectional")
+                        for lk in model.links if lk.to != OUTSIDE]
         sensed = {}
         for s in model.sensors:
             if s.name in rec.signals and s.tank not in sensed:
@@ -287,16 +293,13 @@ class EquationError:
             # about that tank, nor about the flows computed from it (its links' neighbours)
             cw = self.touched(cens)
             if cw.any():
-                tidx = {t.name: i for i, t in enumerate(model.tanks)}
                 hide = cw.copy()
                 if self.gap_rows is not None:
                     hide |= self.touched(self.gap_rows)[:, None]
-                for lk in model.links:
-                    if lk.to != OUTSIDE:
-                        a, b = tidx[lk.from_], tidx[lk.to]
-                        hide[:, b] |= cw[:, a]
-                        if lk.law == "bidirectional":
-                            hide[:, a] |= cw[:, b]
+                for a, b, both_ways in self.coupled:
+                    hide[:, b] |= cw[:, a]
+                    if both_ways:
+                        hide[:, a] |= cw[:, b]
                 R[:, :len(model.tanks)] = np.where(hide, 0.0, R[:, :len(model.tanks)])
         self._hide_starved(model, V, R)
         return R

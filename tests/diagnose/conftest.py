@@ -13,7 +13,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 PLANT = ROOT / "configs" / "plant.toml"
 DURATION = 600.0
-BUNDLED_OPERATION = {"flowlaw_V2_pinned": "example_none"}   # case -> the bundled case whose operation it runs
+# case -> the bundled case whose operation it runs
+BUNDLED_OPERATION = {"flowlaw_V2_pinned": "example_none", "saturation_L1_held_at_clip": "example_none"}
 
 
 def real_plant(nominal):
@@ -112,6 +113,11 @@ def make_fault(nominal, name):
         # trades with the exponent, fitted 0.48
         draw_calibration(m, nominal, SWEEP_SEED1)
         m.find("link", "V2").exponent = 0.45
+    elif name == "saturation_L1_held_at_clip":
+        # the sweep's seed-4 plant, L1 clipping at 9 L; the bundled clean case's last setpoint
+        # (9.3 L from 526.5 s) holds T1 at and above the clip to the end
+        draw_calibration(m, nominal, (0.9818, 0.982, 0.9991, 0.9979))
+        m.find("sensor", "L1").max = 9.0
     elif name == "head_P1_absorbed":
         # the sweep's seed-94 plant, a pump head of 0.02 per dm: at T1's 2.5-4.7 dm it takes 5-9 %
         # of the flow, which the calibration's pump gain takes whole at the -5 % edge

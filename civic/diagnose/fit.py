@@ -673,7 +673,7 @@ def _redate(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], start: FitRe
     width = float(prob.engine.row_times[0, 1] - starts[0])       # one window
     out = list(mechs)
     for i, m in enumerate(mechs):
-        key = next((k for k in ("onset", "since") if k in m.fixed), None)
+        key = m.switch_key
         if key is None:
             continue
         lo, hi = m.fixed.get("not_before", m.fixed[key]), m.fixed.get("not_after", m.fixed[key])

@@ -144,6 +144,17 @@ def nominal():
 
 
 @pytest.fixture(scope="session")
+def sweep_draw(nominal):
+    """factors -> a copy of the nominal plant with that draw of the sweep's calibration spread."""
+    def make(factors):
+        m = nominal.copy()
+        draw_calibration(m, nominal, factors)
+        return m
+
+    return make
+
+
+@pytest.fixture(scope="session")
 def closed_loop_case(nominal):
     """name -> Recording of a 10 min closed-loop run (cached)."""
     from civic.plant.control import run_closed_loop

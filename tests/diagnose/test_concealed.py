@@ -100,7 +100,7 @@ def test_pump_line_clogged_early_in_a_long_record_is_dated(nominal):
     assert abs(p["closure"] - 0.4) < 0.02 and p["not_before"] <= onset <= p["not_after"], p
 
 
-def test_leak_opening_as_a_drain_test_starts_is_dated_in_the_fitted_model(nominal):
+def test_leak_opening_as_a_drain_test_starts_is_dated_in_the_fitted_model(nominal, sweep_draw):
     """A T3 leak from 300 s under the PI loops, whose drain test runs V2 wide open from 301 to
     316 s: on the nominal calibration V2's coefficient takes the leak's 4 % there and the change
     point steps at 315 s (bracket 305-325 s). Dated again in the fitted model: 300 s."""
@@ -108,10 +108,7 @@ def test_leak_opening_as_a_drain_test_starts_is_dated_in_the_fitted_model(nomina
     from civic.plant.model import Link
     from civic.plant.simulate import Recording
 
-    plant = nominal.copy()
-    for path, f in (("pump.P1.gain", 0.983), ("link.V1.coeff", 1.012), ("link.pipe23.coeff", 1.017),
-                    ("link.V2.coeff", 1.0056)):      # the sweep's seed-91 plant
-        plant.set(path, float(nominal.get(path)) * f)
+    plant = sweep_draw((0.983, 1.012, 1.017, 1.0056))      # the sweep's seed-91 plant
     plant.links.append(Link("leak", from_="T3", to="T4", coeff=0.012, since=300.0))
     res = run_closed_loop(plant, 600.0, controller="pi", seed=91, noise=True, controller_model=nominal)
     assert any(op[1] == "drain_test:run" and 300.0 <= op[0] <= 302.0 for op in res.operation)

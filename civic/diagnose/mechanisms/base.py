@@ -59,10 +59,13 @@ class Mechanism:
     def switched_on(self) -> float | None:
         """The time it acts from, when it was switched on mid-run (a closure's `onset`, a leak's
         `since`); None: from the start."""
-        for key in ("onset", "since"):
-            if key in self.fixed:
-                return float(self.fixed[key])
-        return None
+        key = self.switch_key
+        return None if key is None else float(self.fixed[key])
+
+    @property
+    def switch_key(self) -> str | None:
+        """The fixed value that holds the time it was switched on (`onset`, `since`), if any."""
+        return next((k for k in ("onset", "since") if k in self.fixed), None)
 
     def values(self, theta=None) -> dict:
         out = dict(self.params) if theta is None else {k: float(v) for k, v in zip(self.names, theta)}

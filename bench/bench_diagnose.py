@@ -165,9 +165,13 @@ SWEEP = {
     "closure_P1": ("closure", "P1", (0.2, 0.4)),       # VM2 on the pump line: warning, error
     "leakon_T3": ("leak", "T3", (0.012,)),             # into T4, from ONSET on
     "leakon_T1": ("leak", "T1", (0.01,)),
+    "shift_L1": ("sensor_offset", "L1", (0.2,)),       # a reading steps by this at SHIFT_AT
+    "shift_L3": ("sensor_offset", "L3", (0.15,)),
+    "shift_L4": ("sensor_offset", "L4", (0.5,)),       # the reservoir's: only the inventory sees it
     "clean": (None, None, (0.0,)),
 }
 ONSET = 300.0   # s into the 600 s record
+SHIFT_AT = 302.3  # s: a sensor knocked mid-run, between two of the equation error's window starts
 EXCESS_BAR = 3.0  # sensor noises: an effect the calibrated datasheet replays closer than this is below the bar
 
 NEW_KINDS = ("flowlaw", "sensorchar", "deadzone", "split")
@@ -198,6 +202,9 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
                             since=ONSET if kind == "leakon" else 0.0))
     elif kind == "offset":
         m.find("sensor", comp).offset = mag
+    elif kind == "shift":
+        s = m.find("sensor", comp)
+        s.shift, s.since = mag, SHIFT_AT
     elif kind == "deadtime":
         m.find("pump" if comp.startswith("P") else "valve", comp).dead_time = mag
     elif kind == "head":
@@ -273,6 +280,13 @@ def sweep_case(job) -> dict:
             named[0] += (f"from {p.get('since', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})",)
         else:
             ok = ok and "since" not in p
+    if ok and want[0] == "sensor_offset":   # from the start, or since when
+        p = d.findings[0]["fit"].mechanisms[-1].values()
+        if case.startswith("shift"):
+            ok = p.get("not_before", -1.0) <= SHIFT_AT <= p.get("not_after", -1.0)
+            named[0] += (f"from {p.get('since', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})",)
+        else:
+            ok = "since" not in p
     if ok and want[0] == "closure":  # and since when
         p = d.findings[0]["fit"].mechanisms[-1].values()
         ok = p["not_before"] <= ONSET <= p["not_after"]

@@ -156,6 +156,7 @@ class EquationError:
         k0 = np.arange(self.nwin) * self.W
         self.k0, self.k1 = k0, k0 + self.W
         t = np.arange(n) * self.dt
+        self.t = t
         self.row_times = np.stack([t[self.k0], t[self.k1]], axis=1)
         self.train = holdout_mask(self.nwin)
         self._cache = {}
@@ -195,13 +196,21 @@ class EquationError:
         cens = np.zeros((n, nt), bool)
         for i, tk in enumerate(model.tanks):
             s = model.find("sensor", self.sensor_of[tk.name])
-            y = (self.ys if smoothed else self.raw)[s.name]
-            q = s.invert(y)
+            q = s.invert(self._unshifted(s, smoothed))
             V[:, i] = q * tk.area if s.quantity == "level" else q
             if s.max is not None:
                 tol = max(s.resolution, 1e-9) * 1.5
                 cens[:, i] = self.raw[s.name] >= s.max - tol
         return V, cens
+
+    def _unshifted(self, s, smoothed: bool) -> np.ndarray:
+        """The readings of sensor `s` (smoothed or raw) less the shift it took from a time on
+        (smoothed the same way: the smoothed reading ramps across the step)."""
+        y = (self.ys if smoothed else self.raw)[s.name]
+        if not (s.shift and s.since > 0):
+            return y
+        step = np.where(self.t >= s.since - 1e-9, s.shift, 0.0)
+        return y - (uniform_filter1d(step, self.smooth, mode="nearest") if smoothed else step)
 
     def flows(self, model: PlantModel, V: np.ndarray):
         """Per-interval volume changes (n-1, ntanks) and outside accumulation, spill included.

@@ -666,8 +666,9 @@ def _redate(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], start: FitRe
     V2's flow there, taken by V2's coefficient, and stepped at 315 s (bracket 305-325 s).
     Where the likeliest time falls outside the change point's bracket it is adopted, and the
     bracket grows to hold every time within ONSET_LR of it (the change point's stays: in the
-    fitted model the profile is flatter, a T1 leak's 295-305 s became 295-340 s). The finding's
-    own records follow."""
+    fitted model the profile is flatter, a T1 leak's 295-305 s became 295-340 s). A reading's
+    step is dated to the sample (`Localisation.reading_steps`) and moves only where a window
+    start beats that date by ONSET_LR. The finding's own records follow."""
     rows = np.ones_like(prob.engine.train)
     starts = prob.engine.row_times[:, 0]
     width = float(prob.engine.row_times[0, 1] - starts[0])       # one window
@@ -677,7 +678,8 @@ def _redate(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], start: FitRe
         if key is None:
             continue
         lo, hi = m.fixed.get("not_before", m.fixed[key]), m.fixed.get("not_after", m.fixed[key])
-        grid = starts[(starts >= lo - REDATE_REACH) & (starts <= hi + REDATE_REACH)]
+        # its own date among them: a reading's step is dated to the sample, between window starts
+        grid = np.union1d(starts[(starts >= lo - REDATE_REACH) & (starts <= hi + REDATE_REACH)], [m.fixed[key]])
         if grid.size < 2:
             continue
         fits = [prob.fit(out[:i] + [m.with_fixed(**{key: float(t)})] + out[i + 1:], rows=rows,
@@ -686,6 +688,9 @@ def _redate(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], start: FitRe
         best = float(grid[int(np.argmin(sse))])
         if lo <= best <= hi:
             continue        # the change point's date stands, with its (sharper) bracket
+        if hi - lo < width and sse[grid == m.fixed[key]][0] <= sse.min() + ONSET_LR:
+            continue        # a date the readings give to the sample moves only on evidence (the
+                            # balance rows around a reading's step may be hidden: a flat profile)
         near = grid[sse <= sse.min() + ONSET_LR]
         dated = {key: best, "not_before": min(lo, float(near[0]) - width),
                  "not_after": max(hi, float(near[-1]) + width)}

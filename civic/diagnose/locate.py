@@ -24,7 +24,7 @@ from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording
 
 from .compare import INVENTORY, INVENTORY_BAND, RIM_GAP, RIM_TOL, closed_gaps
-from .mechanisms.base import tanks_touching
+from .mechanisms.base import ONSET_Z, drives_no_flow, tanks_touching
 from .noise import noise_sigma, robust_sigma
 
 BLOCK = 6          # rows averaged per block in the lack-of-fit statistic
@@ -34,6 +34,8 @@ SCAN_MAX = 10.0    # one block-mean chi-square this high (equation error): a *su
 ONSET_EDGE = 0.05  # a change point this close to either end of the record is a constant factor
 ONSET_LR = 6.0     # chi-square units: splits this close to the best one bracket the onset
 IDLE_SHARE = 0.02  # a window passing less than this share of a component's typical flow: it is shut
+STEP_SECONDS = 1.0  # a reading's step: the means this long either side of a sample
+STEP_REACH = 30.0   # s: ... looked for this far outside the bracket of its balance's change
 TAIL_RMS = 1.4     # rms this far above the robust (median-based) sigma: heavy tails, i.e. a
                    # mismatch confined to transients (a valve's dead time): also a suspect
 
@@ -63,6 +65,8 @@ class Localisation:
     pinned: list[str] = field(default_factory=list)   # components whose coefficient the calibration pinned
     onsets: dict = field(default_factory=dict)        # pump/link -> (time, z, closure, not before, not after)
     leak_onsets: dict = field(default_factory=dict)   # tank -> (time, z, c, not before, not after): a leak
+    # sensor -> (time, z, step in its unit, not before, not after): its reading stepped (knocked)
+    reading_steps: dict = field(default_factory=dict)
 
     @property
     def mismatch(self) -> bool:
@@ -328,6 +332,51 @@ def change_point(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) 
             float(times[idx[near[-1] + 1], 1]))
 
 
+def reading_step(u: np.ndarray, dt: float, lo: float, hi: float) -> tuple | None:
+    """(time, z, step, not before, not after) of the sharpest step, between `lo` and `hi` s, in
+    `u`, a tank's unexplained volume sample by sample (measured less the model's flows, so the
+    level's own motion is gone): the mean of the STEP_SECONDS after each sample less that of
+    those before, in standard errors of the sample noise. The step came at a sample whose
+    difference is within 2 standard errors of the largest (a sharp step: a sample or two)."""
+    m = max(2, int(round(STEP_SECONDS / dt)))
+    c = np.concatenate(([0.0], np.cumsum(u)))
+    k = np.arange(m, len(u) - m + 1)                   # the step between samples k-1 and k
+    k = k[(k * dt >= lo) & (k * dt <= hi)]
+    if k.size == 0:
+        return None
+    d = (c[k + m] - 2.0 * c[k] + c[k - m]) / m
+    se = max(robust_sigma(np.diff(u)) / np.sqrt(2.0), 1e-12) * np.sqrt(2.0 / m)
+    j = int(np.argmax(np.abs(d)))
+    near = k[np.abs(d) >= np.abs(d[j]) - 2.0 * se]
+    near = near[np.abs(near - k[j]) <= m]              # the step's own shoulders, not another
+    return float(k[j] * dt), float(abs(d[j]) / se), float(d[j]), float(near.min() * dt), float(near.max() * dt)
+
+
+def _reading_steps(loc: Localisation, model: PlantModel, engine, R: np.ndarray, sigma: np.ndarray) -> None:
+    """A reading that stepped (`Localisation.reading_steps`): its tank's balance changes from a
+    time on (a tank whose level drives no flow: the inventory's), and near that time the
+    unexplained volume steps within a sample or two."""
+    V, _ = engine.volumes(model, smoothed=False)
+    F, _ = engine.flows(model, V)
+    cols = list(engine.columns)
+    for i, tk in enumerate(model.tanks):
+        if drives_no_flow(model, tk.name):
+            if INVENTORY not in cols:
+                continue
+            j = cols.index(INVENTORY)
+            where = change_point(R[:, j], np.ones(R.shape[0]), engine.row_times, sigma[j])
+        else:
+            where = loc.leak_onsets.get(tk.name)
+        if where is None or where[1] < ONSET_Z:
+            continue
+        u = V[:, i] - np.concatenate(([0.0], np.cumsum(F[:, i])))
+        step = reading_step(u, engine.dt, where[3] - STEP_REACH, where[4] + STEP_REACH)
+        if step is not None and step[1] >= ONSET_Z:
+            sensor = model.find("sensor", engine.sensor_of[tk.name])
+            per_litre = sensor.gain / (tk.area if sensor.quantity == "level" else 1.0)
+            loc.reading_steps[sensor.name] = (step[0], step[1], step[2] * per_litre, step[3], step[4])
+
+
 def driven_tank(model: PlantModel, component: str) -> str | None:
     """The tank whose level a coefficient acts on: a link's source (its head drives the flow), a
     pump's delivery tank."""
@@ -474,4 +523,5 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
                 cp = change_point(R[:, j], q, engine.row_times, sigma[j])
                 if cp is not None:
                     loc.leak_onsets[tk.name] = (cp[0], cp[1], -cp[2], cp[3], cp[4])
+        _reading_steps(loc, model, engine, R, sigma)
     return loc

@@ -468,7 +468,7 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
         # measurement as the controller sees it (wire resolution)
         if qsens is not None:
             y3 = np.array([(s.gain * (x[tidx[i]] if s.quantity == "volume" else x[tidx[i]] / model.tanks[tidx[i]].area)
-                            + s.offset + eps[k, sidx[i]]) for i, s in enumerate(qsens)])
+                            + s.offset_at(t) + eps[k, sidx[i]]) for i, s in enumerate(qsens)])
             y3 = np.round(y3 * 1000.0) / 1000.0
         else:
             y3 = x[tidx]
@@ -536,7 +536,7 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     if progress is not None:
         progress(n, n)
     vol = X[:, :nt]
-    sigs = measure(model, vol, noise=False)
+    sigs = measure(model, vol, noise=False, t=np.arange(n) * dt)
     for j, s in enumerate(model.sensors):
         sigs[s.name] = sigs[s.name] + eps[:, j]
         if s.resolution > 0:

@@ -124,18 +124,29 @@ class Sensor:
     wire: str | None = None
     wire_scale: float = 1.0
     exponent: float = 1.0   # characteristic y = gain * quantity**exponent + offset (1: linear)
+    shift: float = 0.0      # added to the offset from `since` on: a sensor knocked or re-zeroed mid-run
+    since: float = 0.0      # s from the first sample
 
-    def read(self, q):
-        """The reading for a quantity (before noise, resolution and clip)."""
+    def offset_at(self, t=None):
+        """The offset in force at times `t` (s; None: at the first sample)."""
+        if not self.shift:
+            return self.offset
+        if t is None:
+            return self.offset + (self.shift if self.since <= 0.0 else 0.0)
+        return self.offset + np.where(np.asarray(t, float) >= self.since - 1e-9, self.shift, 0.0)
+
+    def read(self, q, t=None):
+        """The reading for a quantity at times `t` (before noise, resolution and clip)."""
         if self.exponent == 1.0:
-            return self.gain * q + self.offset
-        return self.gain * np.maximum(q, 0.0) ** self.exponent + self.offset
+            return self.gain * q + self.offset_at(t)
+        return self.gain * np.maximum(q, 0.0) ** self.exponent + self.offset_at(t)
 
     def invert(self, y):
-        """The quantity a reading stands for (inverse of `read`; 0 when the gain is 0)."""
+        """The quantity a reading at the first sample stands for (inverse of `read`; 0 when the
+        gain is 0)."""
         if not self.gain:
             return 0.0 * np.asarray(y, float)
-        q = (np.asarray(y, float) - self.offset) / self.gain
+        q = (np.asarray(y, float) - self.offset_at()) / self.gain
         if self.exponent == 1.0:
             return q
         return np.maximum(q, 0.0) ** (1.0 / self.exponent)
@@ -145,7 +156,8 @@ _SECTIONS = (("tank", "tanks", Tank), ("pump", "pumps", Pump), ("valve", "valves
              ("link", "links", Link), ("sensor", "sensors", Sensor))
 _FLOAT_FIELDS = {"area", "capacity", "gain", "dead_time", "closure", "min_source_volume", "head_coeff",
                  "input_offset", "tau", "coeff", "exponent", "min_level", "offset", "noise_sigma",
-                 "resolution", "min", "max", "wire_scale", "level", "volume", "fraction", "onset", "since"}
+                 "resolution", "min", "max", "wire_scale", "level", "volume", "fraction", "onset", "since",
+                 "shift"}
 
 
 def _key(name: str) -> str:
@@ -185,7 +197,7 @@ def _dump(obj) -> dict:
         v = getattr(obj, f.name)
         if v is None or (isinstance(obj, Overflow) and f.name in ("fraction", "rest") and v == f.default) \
                 or (isinstance(obj, Sensor) and f.name == "exponent" and v == f.default) \
-                or (f.name in ("onset", "since") and v == f.default):
+                or (f.name in ("onset", "since", "shift") and v == f.default):
             continue
         if isinstance(v, Overflow):
             v = _dump(v)
@@ -299,11 +311,12 @@ class PlantModel:
         from the start, later ones move t0 earlier (a record cut at t0)."""
         m = copy.copy(self)
         m.pumps, m.links = [copy.copy(x) for x in self.pumps], [copy.copy(x) for x in self.links]
+        m.sensors = [copy.copy(s) for s in self.sensors]
         for x in m.pumps + m.links:
             if x.closure and x.onset > 0:
                 x.onset = max(x.onset - t0, 0.0)
-        for lk in m.links:
-            lk.since = max(lk.since - t0, 0.0)
+        for x in m.links + m.sensors:
+            x.since = max(x.since - t0, 0.0)
         return m
 
     # ---- names ------------------------------------------------------------------------
@@ -385,6 +398,8 @@ class PlantModel:
         for s in self.sensors:
             if not (s.exponent > 0 and math.isfinite(s.exponent)):
                 raise CivicError(f"{where}: sensor {s.name}: exponent must be > 0")
+            if not (s.since >= 0 and math.isfinite(s.since)):
+                raise CivicError(f"{where}: sensor {s.name}: since must be a time >= 0 s")
         for t in self.tanks:
             if not (t.area > 0):
                 raise CivicError(f"{where}: tank {t.name}: area must be > 0")

@@ -556,8 +556,9 @@ def _x0_vector(model: PlantModel, x0, U: np.ndarray) -> np.ndarray:
 
 
 def measure(model: PlantModel, volumes: np.ndarray, noise: bool = False, rng=None,
-            quantize: bool = False) -> dict:
-    """Sensor signals from tank volumes (n, ntanks) (or (n, ntanks, B))."""
+            quantize: bool = False, t=None) -> dict:
+    """Sensor signals from tank volumes (n, ntanks) (or (n, ntanks, B)) at times `t` (s from
+    the first sample; None: the model's sample instants)."""
     idx = {t.name: i for i, t in enumerate(model.tanks)}
     out = {}
     if noise and rng is None:
@@ -567,7 +568,7 @@ def measure(model: PlantModel, volumes: np.ndarray, noise: bool = False, rng=Non
         q = volumes[:, i]
         if s.quantity == "level":
             q = q / model.tanks[i].area
-        y = s.read(q)
+        y = s.read(q, _column(np.arange(len(q)) * model.dt if t is None else t, q))
         if noise and s.noise_sigma > 0:
             y = y + rng.normal(0.0, s.noise_sigma, size=y.shape)
         if quantize and s.resolution > 0:
@@ -576,6 +577,12 @@ def measure(model: PlantModel, volumes: np.ndarray, noise: bool = False, rng=Non
             y = np.clip(y, -np.inf if s.min is None else s.min, np.inf if s.max is None else s.max)
         out[s.name] = y
     return out
+
+
+def _column(t, q):
+    """Times shaped to broadcast against a quantity of shape (n,) or (n, B)."""
+    t = np.asarray(t, float)
+    return t.reshape((-1,) + (1,) * (np.ndim(q) - 1))
 
 
 def simulate(model: PlantModel, t, inputs: dict, x0, noise: bool = False, seed=None,
@@ -605,7 +612,8 @@ def simulate(model: PlantModel, t, inputs: dict, x0, noise: bool = False, seed=N
     nt = len(model.tanks)
     vol = X[:, :nt]
     rng = np.random.default_rng(seed) if noise else None
-    res = measure(model, vol, noise=noise, rng=rng, quantize=noise if quantize is None else quantize)
+    res = measure(model, vol, noise=noise, rng=rng, quantize=noise if quantize is None else quantize,
+                  t=t - t[0] if n else t)
     for j, name in enumerate(model.input_names):
         res[name] = U[:, j]
     res["t"] = t

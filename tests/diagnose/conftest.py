@@ -127,6 +127,12 @@ def make_fault(nominal, name):
         # two concealed effects at once
         m.links.append(Link("leak", from_="T1", to="T4", coeff=0.010, law="orifice"))
         m.find("valve", "V2").dead_time = 2.0
+    elif name.startswith("shift_"):
+        # a sensor knocked 302.3 s in (between two of the equation error's 5 s windows): L3's
+        # reading 0.15 L up, or the reservoir's 0.5 L (only the inventory sees that one); L2's
+        # late, in the last block, which the interleaved split holds out
+        s = m.find("sensor", name.split("_")[1])
+        s.shift, s.since = (0.5 if s.name == "L4" else 0.15), (547.3 if name.endswith("late") else 302.3)
     elif name == "deadzone_P1":
         m.find("pump", "P1").input_offset = 0.05
     elif name == "split_T1":

@@ -45,6 +45,8 @@ def test_concealed_fault_found(closed_loop_case, nominal, name, mech, comp, par,
     if mech == "leak":       # where the water goes: the measured total tells T4 from outside
         assert fitted["to"] == ("outside" if name.endswith("_out") else "T4"), fitted
         assert "since" not in fitted, fitted       # there from the start
+    if mech == "sensor_offset":
+        assert "since" not in fitted, fitted       # read off from the start
     if name in ("leak_T1_small_out", "spill_T2"):
         assert len(d.findings) == 1, [f["mechanism"].label for f in d.findings]
     # significant on held-out data, and the held-out error really falls
@@ -74,6 +76,28 @@ def test_leak_that_opens_mid_run_is_dated(closed_loop_case, nominal):
     rep = build_report(d, rec)["findings"][0]
     assert rep["intervals"] == [[p["since"], pytest.approx(600.0, abs=0.5)]]
     assert f"from {p['since']:g} s on" in rep["evidence"]
+
+
+@pytest.mark.parametrize("case,shift,since", [("shift_L3", 0.15, 302.3), ("shift_L4", 0.5, 302.3),
+                                              ("shift_L2_late", 0.15, 547.3)])
+def test_sensor_knocked_mid_run_is_dated_to_the_sample(closed_loop_case, nominal, case, shift, since):
+    """A reading that steps mid-run (L3; the reservoir's L4, seen by the inventory alone; L2 in
+    the last block, held out: the training blocks alone cannot fit it): the loop holds the
+    reading, so the tank settles off by the step and the balances change from then on. An
+    offset from the sample the unexplained volume steps at, not one over the whole record (nor
+    a sensor map: an L1 step was named one before the reading's step was dated)."""
+    from civic.diagnose.report import build_report
+
+    sensor = case.split("_")[1]
+    rec = closed_loop_case(case)
+    d = diagnose(nominal, rec)
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("sensor_offset", sensor)]
+    p = d.final_all.mechanisms[0].values()
+    assert p["not_before"] <= since <= p["not_after"] and p["not_after"] - p["not_before"] <= 1.0, p
+    assert abs(p["offset"] - shift) <= 0.1 * shift, p
+    rep = build_report(d, rec)["findings"][0]
+    assert f"from {p['since']:g} s on" in rep["evidence"]
+    assert rep["intervals"] == [[pytest.approx(p["since"]), pytest.approx(600.0, abs=0.5)]]
 
 
 def test_pump_line_clogged_early_in_a_long_record_is_dated(nominal):
@@ -181,9 +205,10 @@ def test_burst_makes_a_suspect_not_a_flag(closed_loop_case, nominal):
 
     rec = closed_loop_case("clean")
     eng = EquationError(nominal, rec)
-    R = np.random.default_rng(0).normal(size=(eng.nwin, 4)) * 0.2
+    R = np.random.default_rng(0).normal(size=(eng.nwin, len(eng.columns))) * 0.2
+    R[:, -1] = 0.0                                # inventory: on the stated total
     R[30:36, 0] += 0.2 * 1.6                      # one block of T1, 1.6 sigma off on average
-    loc = localise(nominal, rec, eng, R, np.full(4, 0.2))
+    loc = localise(nominal, rec, eng, R, np.full(R.shape[1], 0.2))
     assert loc.flagged == [] and loc.suspect == ["T1"] and "T1" in loc.tanks
     assert loc.intervals["T1"]
 

@@ -2,8 +2,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from civic.diagnose.locate import ONSET_LR, change_point
+from civic.diagnose.locate import ONSET_LR, change_point, reading_step
 
 
 def _windows(n, w=5.0):
@@ -56,3 +57,18 @@ def test_change_point_judges_an_early_step_against_the_spread_left_around_it():
     z_noise = change_point(r, q, _windows(n), noise)[1]      # judged against the true noise
     assert t == 450.0 and abs(share + 0.4) < 0.02
     assert z > 0.5 * z_noise and lo <= 450.0 <= hi
+
+
+def test_reading_step_dates_a_step_to_the_sample_and_ignores_drift():
+    """The unexplained volume of a tank whose reading steps by 0.1 at sample 3023 (noise 0.02, a
+    slow drift of model error on top): dated to that sample, the step's size and sign; outside
+    the searched span, or in noise alone, no step stands out."""
+    rng = np.random.default_rng(8)
+    n, dt = 6000, 0.1
+    t = np.arange(n) * dt
+    u = 0.002 * t + rng.normal(0.0, 0.02, n) + np.where(np.arange(n) >= 3023, -0.1, 0.0)
+    when, z, step, lo, hi = reading_step(u, dt, 250.0, 350.0)
+    assert when == pytest.approx(302.3) and lo <= 302.3 <= hi and hi - lo <= 1.0
+    assert step == pytest.approx(-0.1, abs=0.03) and z > 5      # 1 s either side: se 0.009
+    assert reading_step(u, dt, 320.0, 400.0)[1] < 5.0
+    assert reading_step(rng.normal(0.0, 0.02, n), dt, 0.0, 600.0)[1] < 5.0

@@ -217,6 +217,40 @@ def test_sensor_characteristic_reads_inverts_and_round_trips(tmp_path):
         m.validate()
 
 
+def test_sensor_shift_from_a_time_on(tmp_path):
+    """A sensor knocked mid-run: its reading takes `shift` more from `since` on, in the open-loop
+    simulation and in the closed loop's wire alike; the initial state reads the first sample; the
+    model file keeps it (and leaves the default out); a negative time is refused."""
+    from civic.plant.control import run_closed_loop
+    from civic.plant.simulate import initial_state
+
+    m = single_tank(coeff=0.0, gain=0.3)
+    s = m.sensors[0]
+    s.offset, s.shift, s.since = 0.5, 0.25, 10.0
+    t = np.arange(200) * 0.1
+    r = simulate(m, t, {"u": np.ones(200)}, {"A": 0.2})
+    np.testing.assert_allclose(r["y"], 0.2 + 0.3 * t + 0.5 + np.where(t >= 10.0, 0.25, 0.0), atol=1e-12)
+    assert initial_state(m, {"y": r["y"]})["A"] == pytest.approx(0.2, abs=1e-12)
+    m.to_toml(tmp_path / "m.toml")
+    back = PlantModel.from_toml(tmp_path / "m.toml").sensors[0]
+    assert (back.shift, back.since) == (0.25, 10.0)
+    assert "shift" not in single_tank().to_toml().split("[[sensor]]")[1]
+    assert m.from_time(4.0).sensors[0].since == 6.0 and s.since == 10.0
+    s.since = -1.0
+    with pytest.raises(CivicError, match="since must be a time >= 0 s"):
+        m.validate()
+
+    four = PlantModel.from_toml(PLANT)
+    knocked = four.copy()
+    knocked.find("sensor", "L3").shift, knocked.find("sensor", "L3").since = 0.2, 30.0
+    a, b = (run_closed_loop(x, 60.0, seed=4, noise=False, controller_model=four) for x in (four, knocked))
+    k = int(round(30.0 / four.dt))
+    np.testing.assert_array_equal(a.signals["L3"][:k], b.signals["L3"][:k])
+    assert b.signals["L3"][k] - a.signals["L3"][k] == pytest.approx(0.2, abs=1e-3)
+    # the loop holds the reading on its setpoint: the tank ends up lower by the shift
+    assert a.volumes[-1, 2] - b.volumes[-1, 2] == pytest.approx(0.2, abs=0.05)
+
+
 def test_sensor_saturation_offset_and_level():
     m = single_tank(coeff=0.0, gain=0.3)
     m.sensors[0].quantity = "level"

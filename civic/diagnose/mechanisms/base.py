@@ -176,6 +176,12 @@ def free_run(loc) -> bool:
     return loc.kind == "simulation" and bool(loc.unmeasured)
 
 
+def drives_no_flow(model: PlantModel, tank: str) -> bool:
+    """No link leaves the tank and none exchanges both ways with it (a reservoir): its
+    level changes no flow, only the inventory sees an offset on its sensor."""
+    return not any(lk.from_ == tank or (lk.law == "bidirectional" and lk.to == tank) for lk in model.links)
+
+
 def sensors_of(model: PlantModel, tank: str) -> list:
     return [s for s in model.sensors if s.tank == tank]
 

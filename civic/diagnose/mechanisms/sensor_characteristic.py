@@ -11,8 +11,7 @@ import copy as _copy
 import numpy as np
 
 from ..compare import INVENTORY_BAND, INVENTORY_SPREAD
-from .base import Mechanism, below_rim
-from .sensor_offset import drives_no_flow
+from .base import Mechanism, below_rim, drives_no_flow
 
 
 STILL_SIGMAS = 10.0   # readings within this many noise sigmas (1st-99th percentile): a still tank

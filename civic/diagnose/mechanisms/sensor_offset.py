@@ -1,16 +1,11 @@
-"""Sensor offset: y = gain*quantity + offset with an offset the datasheet does not have."""
+"""Sensor offset: y = gain*quantity + offset with an offset the datasheet does not have, from
+the start or from a time on (a sensor knocked or re-zeroed mid-run: its reading steps)."""
 from __future__ import annotations
 
 from ..compare import INVENTORY_BAND, INVENTORY_SPREAD
-from .base import Mechanism, sensors_of, tanks_touching
+from .base import Mechanism, dated, drives_no_flow, sensors_of, tanks_touching
 
 OFFSET_FLOOR = 1e-3  # in the sensor's unit: below this no sensor without noise or resolution reads off
-
-
-def drives_no_flow(model, tank: str) -> bool:
-    """No link leaves the tank and none exchanges both ways with it (a reservoir): its
-    level changes no flow, only the inventory sees an offset on its sensor."""
-    return not any(lk.from_ == tank or (lk.law == "bidirectional" and lk.to == tank) for lk in model.links)
 
 
 class SensorOffset(Mechanism):
@@ -18,9 +13,16 @@ class SensorOffset(Mechanism):
     counted = False
     hidden = ("base",)  # the model's own offset, added to the fitted one
 
+    @property
+    def n_params(self) -> int:
+        return super().n_params + (1 if "since" in self.fixed else 0)   # the time is the data's too
+
     def edit(self, model, p):
         s = model.find("sensor", self.component)
-        s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
+        if "since" in p:
+            s.shift, s.since = float(p["offset"]), float(p["since"])
+        else:
+            s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
 
     @classmethod
     def candidates(cls, model, loc):
@@ -35,9 +37,22 @@ class SensorOffset(Mechanism):
                 if s.name in loc.signals_present and s.name not in seen:
                     seen.add(s.name)
                     span = max(loc.signal_span.get(s.name, 1.0), 1e-6)
-                    out.append(cls(s.name, {"offset": 0.0}, {"offset": (-0.25 * span, 0.25 * span)},
-                                   {"base": s.offset}))
+                    bounds = {"offset": (-0.25 * span, 0.25 * span)}
+                    out.append(cls(s.name, {"offset": 0.0}, bounds, {"base": s.offset}))
+                    # a reading that stepped (`Localisation.reading_steps`): from then on
+                    # (from the step's size: a step in the last held-out block leaves the
+                    # training blocks nothing to fit it on, and its held-out evidence is the start's)
+                    if s.name in getattr(loc, "reading_steps", {}):
+                        t0, _, step, lo, hi = loc.reading_steps[s.name]
+                        step = min(max(step, bounds["offset"][0]), bounds["offset"][1])
+                        out.append(cls(s.name, {"offset": step}, dict(bounds),
+                                       {"base": s.offset, "since": t0, "not_before": lo, "not_after": hi}))
         return out
+
+    @property
+    def label(self) -> str:
+        since = f" from {self.fixed['since']:g} s" if "since" in self.fixed else ""
+        return f"{self.name}({self.component}{since})"
 
     def negligible(self, p, model):
         s = model.find("sensor", self.component)
@@ -50,4 +65,5 @@ class SensorOffset(Mechanism):
         return abs(p["offset"]) < max(2.0 * s.noise_sigma, 2.0 * s.resolution, OFFSET_FLOOR)
 
     def describe(self, p):
-        return f"{self.component} reads {p['offset']:+.4g} off"
+        when = f", {dated(p, 'since')}" if "since" in p else ""
+        return f"{self.component} reads {p['offset']:+.4g} off{when}"

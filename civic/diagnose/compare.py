@@ -207,9 +207,9 @@ class EquationError:
         """The readings of sensor `s` (smoothed or raw) less the shift it took from a time on
         (smoothed the same way: the smoothed reading ramps across the step)."""
         y = (self.ys if smoothed else self.raw)[s.name]
-        if not (s.shift and s.since > 0):
+        if not s.shift:
             return y
-        step = np.where(self.t >= s.since - 1e-9, s.shift, 0.0)
+        step = s.offset_at(self.t) - s.offset_at()      # beyond the offset `invert` takes off
         return y - (uniform_filter1d(step, self.smooth, mode="nearest") if smoothed else step)
 
     def flows(self, model: PlantModel, V: np.ndarray):

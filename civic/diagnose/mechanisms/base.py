@@ -110,6 +110,8 @@ class Mechanism:
     @property
     def label(self) -> str:
         extra = f"->{self.fixed['to']}" if "to" in self.fixed else ""
+        if "since" in self.fixed:       # switched on mid-run: a variant beside the standing one
+            extra += f" from {self.fixed['since']:g} s"
         return f"{self.name}({self.component}{extra})"
 
     def describe(self, p: dict) -> str:

@@ -40,11 +40,6 @@ class Leak(Mechanism):
                                    {"to": dest, "since": t0, "not_before": lo, "not_after": hi}))
         return out
 
-    @property
-    def label(self) -> str:
-        since = f" from {self.fixed['since']:g} s" if "since" in self.fixed else ""
-        return f"{self.name}({self.component}->{self.fixed['to']}{since})"
-
     def negligible(self, p, model):
         # 0.2 % of the largest coefficient: a 0.002 leak beside 0.3 links still drains ~2 L in
         # 10 min (the inventory sees it), so 1 % (the old bar) hid it

@@ -49,11 +49,6 @@ class SensorOffset(Mechanism):
                                        {"base": s.offset, "since": t0, "not_before": lo, "not_after": hi}))
         return out
 
-    @property
-    def label(self) -> str:
-        since = f" from {self.fixed['since']:g} s" if "since" in self.fixed else ""
-        return f"{self.name}({self.component}{since})"
-
     def negligible(self, p, model):
         s = model.find("sensor", self.component)
         if model.total_volume is not None and drives_no_flow(model, s.tank):

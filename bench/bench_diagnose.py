@@ -168,10 +168,14 @@ SWEEP = {
     "shift_L1": ("sensor_offset", "L1", (0.2,)),       # a reading steps by this at SHIFT_AT
     "shift_L3": ("sensor_offset", "L3", (0.15,)),
     "shift_L4": ("sensor_offset", "L4", (0.5,)),       # the reservoir's: only the inventory sees it
+    "drift_L1": ("sensor_offset", "L1", (-0.00075,)),  # a reading drifts by this per s from DRIFT_FROM
+    "drift_L3": ("sensor_offset", "L3", (0.00075,)),   # (0.3 L by the end)
+    "drift_L4": ("sensor_offset", "L4", (0.0015,)),
     "clean": (None, None, (0.0,)),
 }
 ONSET = 300.0   # s into the 600 s record
 SHIFT_AT = 302.3  # s: a sensor knocked mid-run, between two of the equation error's window starts
+DRIFT_FROM = 200.0  # s: a sensor that starts drifting
 EXCESS_BAR = 3.0  # sensor noises: an effect the calibrated datasheet replays closer than this is below the bar
 
 NEW_KINDS = ("flowlaw", "sensorchar", "deadzone", "split")
@@ -205,6 +209,9 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
     elif kind == "shift":
         s = m.find("sensor", comp)
         s.shift, s.since = mag, SHIFT_AT
+    elif kind == "drift":
+        s = m.find("sensor", comp)
+        s.drift, s.since = mag, DRIFT_FROM
     elif kind == "deadtime":
         m.find("pump" if comp.startswith("P") else "valve", comp).dead_time = mag
     elif kind == "head":
@@ -282,9 +289,11 @@ def sweep_case(job) -> dict:
             ok = ok and "since" not in p
     if ok and want[0] == "sensor_offset":   # from the start, or since when
         p = d.findings[0]["fit"].mechanisms[-1].values()
-        if case.startswith("shift"):
-            ok = p.get("not_before", -1.0) <= SHIFT_AT <= p.get("not_after", -1.0)
-            named[0] += (f"from {p.get('since', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})",)
+        if case.startswith(("shift", "drift")):
+            at = SHIFT_AT if case.startswith("shift") else DRIFT_FROM
+            ok = p.get("not_before", -1.0) <= at <= p.get("not_after", -1.0) and ("drift" in p) == case.startswith("drift")
+            named[0] += (("drifting " if "drift" in p else "") + f"from {p.get('since', 0.0):g} s "
+                         f"({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})",)
         else:
             ok = "since" not in p
     if ok and want[0] == "closure":  # and since when

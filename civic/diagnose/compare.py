@@ -204,10 +204,10 @@ class EquationError:
         return V, cens
 
     def _unshifted(self, s, smoothed: bool) -> np.ndarray:
-        """The readings of sensor `s` (smoothed or raw) less the shift it took from a time on
-        (smoothed the same way: the smoothed reading ramps across the step)."""
+        """The readings of sensor `s` (smoothed or raw) less the step or drift it took from a
+        time on (smoothed the same way: the smoothed reading ramps across a step)."""
         y = (self.ys if smoothed else self.raw)[s.name]
-        if not s.shift:
+        if not s.moves:
             return y
         step = s.offset_at(self.t) - s.offset_at()      # beyond the offset `invert` takes off
         return y - (uniform_filter1d(step, self.smooth, mode="nearest") if smoothed else step)
@@ -389,8 +389,10 @@ class SimulationError:
         out = {s: np.empty(self.n) for s in self.columns}
         for k in range(0, self.n, self.horizon):
             e = min(self.n, k + self.horizon + 1)
-            seg = simulate(model.from_time(self.t[k]), self.t[k:e] - self.t[k], {n: v[k:e] for n, v in self.inputs.items()},
-                           measured_state(model, {n: v[k:] for n, v in self.rec.signals.items()}, 1))
+            # restarted from the readings through the sensors as they stand then (a step or drift)
+            mk = model.from_time(self.t[k])
+            seg = simulate(mk, self.t[k:e] - self.t[k], {n: v[k:e] for n, v in self.inputs.items()},
+                           measured_state(mk, {n: v[k:] for n, v in self.rec.signals.items()}, 1))
             for s in self.columns:
                 out[s][k:e] = seg[s]
         return out

@@ -67,6 +67,9 @@ class Localisation:
     leak_onsets: dict = field(default_factory=dict)   # tank -> (time, z, c, not before, not after): a leak
     # sensor -> (time, z, step in its unit, not before, not after): its reading stepped (knocked)
     reading_steps: dict = field(default_factory=dict)
+    # sensor -> (time, z, not before, not after, end of the record): its tank's balance (a tank
+    # that drives no flow: the inventory's) changed from that time on; a reading may drift from then
+    reading_changes: dict = field(default_factory=dict)
 
     @property
     def mismatch(self) -> bool:
@@ -354,8 +357,8 @@ def reading_step(u: np.ndarray, dt: float, lo: float, hi: float) -> tuple | None
 
 def _reading_steps(loc: Localisation, model: PlantModel, engine, R: np.ndarray, sigma: np.ndarray) -> None:
     """A reading that stepped (`Localisation.reading_steps`): its tank's balance changes from a
-    time on (a tank whose level drives no flow: the inventory's), and near that time the
-    unexplained volume steps within a sample or two."""
+    time on (a tank whose level drives no flow: the inventory's, `Localisation.reading_changes`),
+    and near that time the unexplained volume steps within a sample or two."""
     V, _ = engine.volumes(model, smoothed=False)
     F, _ = engine.flows(model, V)
     cols = list(engine.columns)
@@ -369,10 +372,11 @@ def _reading_steps(loc: Localisation, model: PlantModel, engine, R: np.ndarray, 
             where = loc.leak_onsets.get(tk.name)
         if where is None or where[1] < ONSET_Z:
             continue
+        sensor = model.find("sensor", engine.sensor_of[tk.name])
+        loc.reading_changes[sensor.name] = (where[0], where[1], where[3], where[4], float(engine.row_times[-1, 1]))
         u = V[:, i] - np.concatenate(([0.0], np.cumsum(F[:, i])))
         step = reading_step(u, engine.dt, where[3] - STEP_REACH, where[4] + STEP_REACH)
         if step is not None and step[1] >= ONSET_Z:
-            sensor = model.find("sensor", engine.sensor_of[tk.name])
             per_litre = sensor.gain / (tk.area if sensor.quantity == "level" else 1.0)
             loc.reading_steps[sensor.name] = (step[0], step[1], step[2] * per_litre, step[3], step[4])
 

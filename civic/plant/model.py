@@ -125,15 +125,23 @@ class Sensor:
     wire_scale: float = 1.0
     exponent: float = 1.0   # characteristic y = gain * quantity**exponent + offset (1: linear)
     shift: float = 0.0      # added to the offset from `since` on: a sensor knocked or re-zeroed mid-run
+    drift: float = 0.0      # per second, added from `since` on: a sensor that drifts (fouling, ageing)
     since: float = 0.0      # s from the first sample
+
+    @property
+    def moves(self) -> bool:
+        """Its offset changes during the record (a step or a drift from `since` on)."""
+        return bool(self.shift or self.drift)
 
     def offset_at(self, t=None):
         """The offset in force at times `t` (s; None: at the first sample)."""
-        if not self.shift:
+        if not self.moves:
             return self.offset
         if t is None:
             return self.offset + (self.shift if self.since <= 0.0 else 0.0)
-        return self.offset + np.where(np.asarray(t, float) >= self.since - 1e-9, self.shift, 0.0)
+        t = np.asarray(t, float)
+        return (self.offset + np.where(t >= self.since - 1e-9, self.shift, 0.0)
+                + self.drift * np.maximum(t - self.since, 0.0))
 
     def read(self, q, t=None):
         """The reading for a quantity at times `t` (before noise, resolution and clip)."""
@@ -157,7 +165,7 @@ _SECTIONS = (("tank", "tanks", Tank), ("pump", "pumps", Pump), ("valve", "valves
 _FLOAT_FIELDS = {"area", "capacity", "gain", "dead_time", "closure", "min_source_volume", "head_coeff",
                  "input_offset", "tau", "coeff", "exponent", "min_level", "offset", "noise_sigma",
                  "resolution", "min", "max", "wire_scale", "level", "volume", "fraction", "onset", "since",
-                 "shift"}
+                 "shift", "drift"}
 
 
 def _key(name: str) -> str:
@@ -197,7 +205,7 @@ def _dump(obj) -> dict:
         v = getattr(obj, f.name)
         if v is None or (isinstance(obj, Overflow) and f.name in ("fraction", "rest") and v == f.default) \
                 or (isinstance(obj, Sensor) and f.name == "exponent" and v == f.default) \
-                or (f.name in ("onset", "since", "shift") and v == f.default):
+                or (f.name in ("onset", "since", "shift", "drift") and v == f.default):
             continue
         if isinstance(v, Overflow):
             v = _dump(v)
@@ -315,6 +323,9 @@ class PlantModel:
         for x in m.pumps + m.links:
             if x.closure and x.onset > 0:
                 x.onset = max(x.onset - t0, 0.0)
+        for x in m.sensors:
+            if x.drift and x.since < t0:     # what it drifted by t0 stands from the start
+                x.shift += x.drift * (t0 - x.since)
         for x in m.links + m.sensors:
             x.since = max(x.since - t0, 0.0)
         return m
@@ -400,6 +411,8 @@ class PlantModel:
                 raise CivicError(f"{where}: sensor {s.name}: exponent must be > 0")
             if not (s.since >= 0 and math.isfinite(s.since)):
                 raise CivicError(f"{where}: sensor {s.name}: since must be a time >= 0 s")
+            if not math.isfinite(s.drift):
+                raise CivicError(f"{where}: sensor {s.name}: drift must be a finite rate")
         for t in self.tanks:
             if not (t.area > 0):
                 raise CivicError(f"{where}: tank {t.name}: area must be > 0")

@@ -568,7 +568,7 @@ def measure(model: PlantModel, volumes: np.ndarray, noise: bool = False, rng=Non
         q = volumes[:, i]
         if s.quantity == "level":
             q = q / model.tanks[i].area
-        when = None if not s.shift else _column(np.arange(len(q)) * model.dt if t is None else t, q)
+        when = None if not s.moves else _column(np.arange(len(q)) * model.dt if t is None else t, q)
         y = s.read(q, when)
         if noise and s.noise_sigma > 0:
             y = y + rng.normal(0.0, s.noise_sigma, size=y.shape)

@@ -133,6 +133,11 @@ def make_fault(nominal, name):
         # late, in the last block, which the interleaved split holds out
         s = m.find("sensor", name.split("_")[1])
         s.shift, s.since = (0.5 if s.name == "L4" else 0.15), (547.3 if name.endswith("late") else 302.3)
+    elif name.startswith("drift_"):
+        # a sensor that starts drifting 200 s in by 0.3 L over the rest of the record: L1's
+        # reading down (the loop then fills T1), L3's up
+        s = m.find("sensor", name.split("_")[1])
+        s.drift, s.since = (-0.00075 if s.name == "L1" else 0.00075), 200.0
     elif name == "deadzone_P1":
         m.find("pump", "P1").input_offset = 0.05
     elif name == "split_T1":

@@ -100,6 +100,27 @@ def test_sensor_knocked_mid_run_is_dated_to_the_sample(closed_loop_case, nominal
     assert rep["intervals"] == [[pytest.approx(p["since"]), pytest.approx(600.0, abs=0.5)]]
 
 
+@pytest.mark.parametrize("case,drift", [("drift_L1", -0.00075), ("drift_L3", 0.00075)])
+def test_sensor_drifting_from_a_time_on_is_a_drift(closed_loop_case, nominal, case, drift):
+    """A reading that drifts from 200 s on by 0.3 L: the loop holds it, the tank drifts the
+    other way. A drifting offset from a time whose bracket holds 200 s (its balance's change
+    point fell 85 s late: a ramp grows out of the noise), not a constant offset (which left
+    L1's replay 4x the noise) nor a step, and the improved model replays the record within
+    noise."""
+    from civic.diagnose.report import build_report, simulation_rmse
+
+    sensor = case.split("_")[1]
+    rec = closed_loop_case(case)
+    d = diagnose(nominal, rec)
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("sensor_offset", sensor)]
+    p = d.final_all.mechanisms[0].values()
+    assert "offset" not in p and abs(p["drift"] - drift) <= 0.2 * abs(drift), p
+    assert p["not_before"] <= 200.0 <= p["not_after"], p
+    assert simulation_rmse(d.model_improved, rec)[0][sensor] < 1.5 * nominal.find("sensor", sensor).noise_sigma
+    rep = build_report(d, rec)["findings"][0]
+    assert "drifts" in rep["evidence"] and f"from {p['since']:g} s on" in rep["evidence"]
+
+
 def test_pump_line_clogged_early_in_a_long_record_is_dated(nominal):
     """VM2 at 40 % from 226 s of a 900 s record (one unit of the plant type, the PI loops, both
     test procedures, as in traces/continuous): three quarters of T1's balance carry the clog, so

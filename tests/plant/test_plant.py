@@ -251,6 +251,34 @@ def test_sensor_shift_from_a_time_on(tmp_path):
     assert a.volumes[-1, 2] - b.volumes[-1, 2] == pytest.approx(0.2, abs=0.05)
 
 
+def test_sensor_drift_from_a_time_on(tmp_path):
+    """A sensor that drifts: its reading gains `drift` per second from `since` on, in the
+    open-loop simulation and in the closed loop alike; a record cut later keeps what it drifted
+    by then; the model file keeps it (and leaves the default out)."""
+    from civic.plant.control import run_closed_loop
+
+    m = single_tank(coeff=0.0, gain=0.3)
+    s = m.sensors[0]
+    s.drift, s.since = -0.01, 5.0
+    t = np.arange(200) * 0.1
+    r = simulate(m, t, {"u": np.ones(200)}, {"A": 0.2})
+    np.testing.assert_allclose(r["y"], 0.2 + 0.3 * t - 0.01 * np.maximum(t - 5.0, 0.0), atol=1e-12)
+    cut = m.from_time(12.0).sensors[0]
+    assert cut.offset_at(np.array([0.0, 3.0])) == pytest.approx([-0.07, -0.10])
+    m.to_toml(tmp_path / "m.toml")
+    assert PlantModel.from_toml(tmp_path / "m.toml").sensors[0].drift == -0.01
+    assert "drift" not in single_tank().to_toml().split("[[sensor]]")[1]
+
+    four = PlantModel.from_toml(PLANT)
+    drifting = four.copy()
+    drifting.find("sensor", "L3").drift, drifting.find("sensor", "L3").since = 0.004, 20.0
+    a, b = (run_closed_loop(x, 80.0, seed=4, noise=False, controller_model=four) for x in (four, drifting))
+    k = int(round(20.0 / four.dt))
+    np.testing.assert_array_equal(a.signals["L3"][:k], b.signals["L3"][:k])
+    # the loop holds the drifting reading on its setpoint: the tank sinks by what it drifted
+    assert a.volumes[-1, 2] - b.volumes[-1, 2] == pytest.approx(0.004 * 60.0, abs=0.06)
+
+
 def test_sensor_saturation_offset_and_level():
     m = single_tank(coeff=0.0, gain=0.3)
     m.sensors[0].quantity = "level"

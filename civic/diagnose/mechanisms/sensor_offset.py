@@ -1,25 +1,34 @@
 """Sensor offset: y = gain*quantity + offset with an offset the datasheet does not have, from
-the start or from a time on (a sensor knocked or re-zeroed mid-run: its reading steps)."""
+the start or from a time on (a sensor knocked or re-zeroed mid-run: its reading steps), or one
+that grows from a time on (a sensor drifting: fouling, ageing, a warming transmitter)."""
 from __future__ import annotations
 
 from ..compare import INVENTORY_BAND, INVENTORY_SPREAD
 from .base import Mechanism, dated, drives_no_flow, sensors_of, tanks_touching
 
 OFFSET_FLOOR = 1e-3  # in the sensor's unit: below this no sensor without noise or resolution reads off
+DRIFT_STARTS = 4     # start times tried for a drift, from the record's start to its balance's change
 
 
 class SensorOffset(Mechanism):
     name = "sensor_offset"
     counted = False
-    hidden = ("base",)  # the model's own offset, added to the fitted one
+    hidden = ("base", "end")  # the model's own offset, added to the fitted one; the record's end (s)
 
     @property
     def n_params(self) -> int:
         return super().n_params + (1 if "since" in self.fixed else 0)   # the time is the data's too
 
+    @property
+    def label(self) -> str:
+        base = super().label
+        return base.replace(f"({self.component}", f"({self.component} drift", 1) if "drift" in self.params else base
+
     def edit(self, model, p):
         s = model.find("sensor", self.component)
-        if "since" in p:
+        if "drift" in p:
+            s.drift, s.since = float(p["drift"]), float(p["since"])
+        elif "since" in p:
             s.shift, s.since = float(p["offset"]), float(p["since"])
         else:
             s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
@@ -47,10 +56,28 @@ class SensorOffset(Mechanism):
                         step = min(max(step, bounds["offset"][0]), bounds["offset"][1])
                         out.append(cls(s.name, {"offset": step}, dict(bounds),
                                        {"base": s.offset, "since": t0, "not_before": lo, "not_after": hi}))
+                    # its tank's balance changed from a time on: a reading drifting from then or
+                    # before (a ramp grows out of the noise late: the change point of a drift of
+                    # 0.3 L in 400 s from 200 s fell at 285 s), from DRIFT_STARTS times between
+                    # the record's start and that change, each bracketing its share of the span
+                    if s.name in getattr(loc, "reading_changes", {}):
+                        t0, _, lo, hi, end = loc.reading_changes[s.name]
+                        cell = t0 / (DRIFT_STARTS - 1)
+                        for k in range(DRIFT_STARTS):
+                            since = k * cell
+                            first, last = max(since - cell / 2, 0.0), since + cell / 2
+                            if k == DRIFT_STARTS - 1:
+                                first, last = min(first, lo), hi
+                            reach = bounds["offset"][1] / max(end - since, 1.0)
+                            out.append(cls(s.name, {"drift": 0.0}, {"drift": (-reach, reach)},
+                                           {"base": s.offset, "since": since, "not_before": first,
+                                            "not_after": last, "end": end}))
         return out
 
     def negligible(self, p, model):
         s = model.find("sensor", self.component)
+        if "drift" in p:      # judged by what it drifted by the record's end
+            p = {"offset": p["drift"] * max(self.fixed["end"] - p["since"], 0.0)}
         if model.total_volume is not None and drives_no_flow(model, s.tank):
             # seen through the inventory alone: within the fill's band it is the fill's error
             band = INVENTORY_BAND * INVENTORY_SPREAD * model.total_volume
@@ -61,4 +88,7 @@ class SensorOffset(Mechanism):
 
     def describe(self, p):
         when = f", {dated(p, 'since')}" if "since" in p else ""
+        if "drift" in p:
+            by = p["drift"] * max(self.fixed["end"] - p["since"], 0.0)
+            return f"{self.component} drifts {p['drift']:+.3g} per s ({by:+.4g} by the end){when}"
         return f"{self.component} reads {p['offset']:+.4g} off{when}"

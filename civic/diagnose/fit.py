@@ -668,7 +668,8 @@ def _redate(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], start: FitRe
     bracket grows to hold every time within ONSET_LR of it (the change point's stays: in the
     fitted model the profile is flatter, a T1 leak's 295-305 s became 295-340 s). A reading's
     step is dated to the sample (`Localisation.reading_steps`) and moves only where a window
-    start beats that date by ONSET_LR. The finding's own records follow."""
+    start beats that date by ONSET_LR. A date guessed on a grid (a drift's start) takes the
+    profile's best and its ONSET_LR bracket. The finding's own records follow."""
     rows = np.ones_like(prob.engine.train)
     starts = prob.engine.row_times[:, 0]
     width = float(prob.engine.row_times[0, 1] - starts[0])       # one window
@@ -686,14 +687,18 @@ def _redate(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], start: FitRe
                          start_cal=start.cal, start_x0=start.x0_extra) for t in grid]
         sse = np.array([f.train_sse for f in fits])
         best = float(grid[int(np.argmin(sse))])
-        if lo <= best <= hi:
+        near = grid[sse <= sse.min() + ONSET_LR]
+        if m.fixed.get("guessed"):
+            # a date guessed on a grid (a drift's start): the profile's best, its own bracket
+            dated = {key: best, "not_before": max(float(near[0]) - width, 0.0), "not_after": float(near[-1]) + width}
+        elif lo <= best <= hi:
             continue        # the change point's date stands, with its (sharper) bracket
-        if hi - lo < width and sse[grid == m.fixed[key]][0] <= sse.min() + ONSET_LR:
+        elif hi - lo < width and sse[grid == m.fixed[key]][0] <= sse.min() + ONSET_LR:
             continue        # a date the readings give to the sample moves only on evidence (the
                             # balance rows around a reading's step may be hidden: a flat profile)
-        near = grid[sse <= sse.min() + ONSET_LR]
-        dated = {key: best, "not_before": min(lo, float(near[0]) - width),
-                 "not_after": max(hi, float(near[-1]) + width)}
+        else:
+            dated = {key: best, "not_before": min(lo, float(near[0]) - width),
+                     "not_after": max(hi, float(near[-1]) + width)}
         out[i] = m.with_fixed(**dated)
         # the forward selection's i-th finding is this mechanism (its label, its intervals)
         for x in (diag.findings[i]["mechanism"], diag.findings[i]["fit"].mechanisms[-1]):

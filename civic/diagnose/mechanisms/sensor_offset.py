@@ -13,7 +13,8 @@ DRIFT_STARTS = 4     # start times tried for a drift, from the record's start to
 class SensorOffset(Mechanism):
     name = "sensor_offset"
     counted = False
-    hidden = ("base", "end")  # the model's own offset, added to the fitted one; the record's end (s)
+    hidden = ("base", "end", "guessed")  # the model's own offset (added to the fitted one); the
+                                         # record's end (s); a start guessed on a grid
 
     @property
     def n_params(self) -> int:
@@ -64,14 +65,14 @@ class SensorOffset(Mechanism):
                         t0, _, lo, hi, end = loc.reading_changes[s.name]
                         cell = t0 / (DRIFT_STARTS - 1)
                         for k in range(DRIFT_STARTS):
-                            since = k * cell
+                            since = float(round(k * cell))
                             first, last = max(since - cell / 2, 0.0), since + cell / 2
                             if k == DRIFT_STARTS - 1:
                                 first, last = min(first, lo), hi
                             reach = bounds["offset"][1] / max(end - since, 1.0)
                             out.append(cls(s.name, {"drift": 0.0}, {"drift": (-reach, reach)},
                                            {"base": s.offset, "since": since, "not_before": first,
-                                            "not_after": last, "end": end}))
+                                            "not_after": last, "end": end, "guessed": True}))
         return out
 
     def negligible(self, p, model):

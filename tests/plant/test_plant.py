@@ -217,11 +217,23 @@ def test_sensor_characteristic_reads_inverts_and_round_trips(tmp_path):
         m.validate()
 
 
+def _loop_with_l3_moved(duration, **moved):
+    """The four-tank loop without noise, as is and with L3's sensor edited (`moved`, from
+    `since` on): both runs and the sample index of `since`."""
+    from civic.plant.control import run_closed_loop
+
+    four = PlantModel.from_toml(PLANT)
+    other = four.copy()
+    for key, value in moved.items():
+        setattr(other.find("sensor", "L3"), key, value)
+    a, b = (run_closed_loop(x, duration, seed=4, noise=False, controller_model=four) for x in (four, other))
+    return a, b, int(round(moved["since"] / four.dt))
+
+
 def test_sensor_shift_from_a_time_on(tmp_path):
     """A sensor knocked mid-run: its reading takes `shift` more from `since` on, in the open-loop
     simulation and in the closed loop's wire alike; the initial state reads the first sample; the
     model file keeps it (and leaves the default out); a negative time is refused."""
-    from civic.plant.control import run_closed_loop
     from civic.plant.simulate import initial_state
 
     m = single_tank(coeff=0.0, gain=0.3)
@@ -240,11 +252,7 @@ def test_sensor_shift_from_a_time_on(tmp_path):
     with pytest.raises(CivicError, match="since must be a time >= 0 s"):
         m.validate()
 
-    four = PlantModel.from_toml(PLANT)
-    knocked = four.copy()
-    knocked.find("sensor", "L3").shift, knocked.find("sensor", "L3").since = 0.2, 30.0
-    a, b = (run_closed_loop(x, 60.0, seed=4, noise=False, controller_model=four) for x in (four, knocked))
-    k = int(round(30.0 / four.dt))
+    a, b, k = _loop_with_l3_moved(60.0, shift=0.2, since=30.0)
     np.testing.assert_array_equal(a.signals["L3"][:k], b.signals["L3"][:k])
     assert b.signals["L3"][k] - a.signals["L3"][k] == pytest.approx(0.2, abs=1e-3)
     # the loop holds the reading on its setpoint: the tank ends up lower by the shift
@@ -254,9 +262,8 @@ def test_sensor_shift_from_a_time_on(tmp_path):
 def test_sensor_drift_from_a_time_on(tmp_path):
     """A sensor that drifts: its reading gains `drift` per second from `since` on, in the
     open-loop simulation and in the closed loop alike; a record cut later keeps what it drifted
-    by then; the model file keeps it (and leaves the default out)."""
-    from civic.plant.control import run_closed_loop
-
+    by then; the model file keeps it (and leaves the default out); a rate that is no number
+    is refused."""
     m = single_tank(coeff=0.0, gain=0.3)
     s = m.sensors[0]
     s.drift, s.since = -0.01, 5.0
@@ -268,12 +275,11 @@ def test_sensor_drift_from_a_time_on(tmp_path):
     m.to_toml(tmp_path / "m.toml")
     assert PlantModel.from_toml(tmp_path / "m.toml").sensors[0].drift == -0.01
     assert "drift" not in single_tank().to_toml().split("[[sensor]]")[1]
+    s.drift = float("nan")
+    with pytest.raises(CivicError, match="drift must be a finite rate"):
+        m.validate()
 
-    four = PlantModel.from_toml(PLANT)
-    drifting = four.copy()
-    drifting.find("sensor", "L3").drift, drifting.find("sensor", "L3").since = 0.004, 20.0
-    a, b = (run_closed_loop(x, 80.0, seed=4, noise=False, controller_model=four) for x in (four, drifting))
-    k = int(round(20.0 / four.dt))
+    a, b, k = _loop_with_l3_moved(80.0, drift=0.004, since=20.0)
     np.testing.assert_array_equal(a.signals["L3"][:k], b.signals["L3"][:k])
     # the loop holds the drifting reading on its setpoint: the tank sinks by what it drifted
     assert a.volumes[-1, 2] - b.volumes[-1, 2] == pytest.approx(0.004 * 60.0, abs=0.06)

@@ -36,6 +36,7 @@ ONSET_LR = 6.0     # chi-square units: splits this close to the best one bracket
 IDLE_SHARE = 0.02  # a window passing less than this share of a component's typical flow: it is shut
 STEP_SECONDS = 1.0  # a reading's step: the means this long either side of a sample
 STEP_REACH = 30.0   # s: ... looked for this far outside the bracket of its balance's change
+STEP_Z_ANYWHERE = 8.0  # ... and anywhere in the record when this many standard errors
 TAIL_RMS = 1.4     # rms this far above the robust (median-based) sigma: heavy tails, i.e. a
                    # mismatch confined to transients (a valve's dead time): also a suspect
 
@@ -370,13 +371,21 @@ def _reading_steps(loc: Localisation, model: PlantModel, engine, R: np.ndarray, 
             where = change_point(R[:, j], np.ones(R.shape[0]), engine.row_times, sigma[j])
         else:
             where = loc.leak_onsets.get(tk.name)
-        if where is None or where[1] < ONSET_Z:
-            continue
         sensor = model.find("sensor", engine.sensor_of[tk.name])
-        loc.reading_changes[sensor.name] = (where[0], where[1], where[3], where[4], float(engine.row_times[-1, 1]))
         u = V[:, i] - np.concatenate(([0.0], np.cumsum(F[:, i])))
-        step = reading_step(u, engine.dt, where[3] - STEP_REACH, where[4] + STEP_REACH)
-        if step is not None and step[1] >= ONSET_Z:
+        end = float(engine.row_times[-1, 1])
+        found = []
+        if where is not None and where[1] >= ONSET_Z:
+            loc.reading_changes[sensor.name] = (where[0], where[1], where[3], where[4], end)
+            near = reading_step(u, engine.dt, where[3] - STEP_REACH, where[4] + STEP_REACH)
+            found += [near] if near is not None and near[1] >= ONSET_Z else []
+        # or anywhere, standing far out of the noise (clean runs: z <= 4.3): a step late in the
+        # record leaves the balances too little to change, and under PI loops an L2 step at
+        # 141 s changed T2's balance at 290 s
+        anywhere = reading_step(u, engine.dt, 0.0, end)
+        found += [anywhere] if anywhere is not None and anywhere[1] >= STEP_Z_ANYWHERE else []
+        if found:
+            step = max(found, key=lambda x: x[1])
             per_litre = sensor.gain / (tk.area if sensor.quantity == "level" else 1.0)
             loc.reading_steps[sensor.name] = (step[0], step[1], step[2] * per_litre, step[3], step[4])
 

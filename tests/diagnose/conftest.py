@@ -130,9 +130,10 @@ def make_fault(nominal, name):
     elif name.startswith("shift_"):
         # a sensor knocked 302.3 s in (between two of the equation error's 5 s windows): L3's
         # reading 0.15 L up, or the reservoir's 0.5 L (only the inventory sees that one); L2's
-        # late, in the last block, which the interleaved split holds out
+        # late, in the last block, which the interleaved split holds out; L3's 22 s before the end
         s = m.find("sensor", name.split("_")[1])
-        s.shift, s.since = (0.5 if s.name == "L4" else 0.15), (547.3 if name.endswith("late") else 302.3)
+        s.shift = 0.5 if s.name == "L4" else 0.15
+        s.since = {"late": 547.3, "end": 577.7}.get(name.split("_")[-1], 302.3)
     elif name.startswith("drift_"):
         # a sensor that starts drifting 200 s in by 0.3 L over the rest of the record: L1's
         # reading down (the loop then fills T1), L3's up

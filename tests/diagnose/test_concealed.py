@@ -79,10 +79,11 @@ def test_leak_that_opens_mid_run_is_dated(closed_loop_case, nominal):
 
 
 @pytest.mark.parametrize("case,shift,since", [("shift_L3", 0.15, 302.3), ("shift_L4", 0.5, 302.3),
-                                              ("shift_L2_late", 0.15, 547.3)])
+                                              ("shift_L2_late", 0.15, 547.3), ("shift_L3_end", 0.15, 577.7)])
 def test_sensor_knocked_mid_run_is_dated_to_the_sample(closed_loop_case, nominal, case, shift, since):
     """A reading that steps mid-run (L3; the reservoir's L4, seen by the inventory alone; L2 in
-    the last block, held out: the training blocks alone cannot fit it): the loop holds the
+    the last block, held out: the training blocks alone cannot fit it; L3 22 s before the end,
+    where the balances change too little to flag anything): the loop holds the
     reading, so the tank settles off by the step and the balances change from then on. An
     offset from the sample the unexplained volume steps at, not one over the whole record (nor
     a sensor map: an L1 step was named one before the reading's step was dated)."""

@@ -363,6 +363,7 @@ def _reading_steps(loc: Localisation, model: PlantModel, engine, R: np.ndarray, 
     V, _ = engine.volumes(model, smoothed=False)
     F, _ = engine.flows(model, V)
     cols = list(engine.columns)
+    end = float(engine.row_times[-1, 1])
     for i, tk in enumerate(model.tanks):
         if drives_no_flow(model, tk.name):
             if INVENTORY not in cols:
@@ -373,7 +374,6 @@ def _reading_steps(loc: Localisation, model: PlantModel, engine, R: np.ndarray, 
             where = loc.leak_onsets.get(tk.name)
         sensor = model.find("sensor", engine.sensor_of[tk.name])
         u = V[:, i] - np.concatenate(([0.0], np.cumsum(F[:, i])))
-        end = float(engine.row_times[-1, 1])
         found = []
         if where is not None and where[1] >= ONSET_Z:
             loc.reading_changes[sensor.name] = (where[0], where[1], where[3], where[4], end)

@@ -75,10 +75,14 @@ class SensorOffset(Mechanism):
                                             "not_after": last, "end": end, "guessed": True}))
         return out
 
+    def _drifted(self, p) -> float:
+        """What a drifting reading drifted by the record's end."""
+        return p["drift"] * max(self.fixed["end"] - p["since"], 0.0)
+
     def negligible(self, p, model):
         s = model.find("sensor", self.component)
         if "drift" in p:      # judged by what it drifted by the record's end
-            p = {"offset": p["drift"] * max(self.fixed["end"] - p["since"], 0.0)}
+            p = {"offset": self._drifted(p)}
         if model.total_volume is not None and drives_no_flow(model, s.tank):
             # seen through the inventory alone: within the fill's band it is the fill's error
             band = INVENTORY_BAND * INVENTORY_SPREAD * model.total_volume
@@ -90,6 +94,5 @@ class SensorOffset(Mechanism):
     def describe(self, p):
         when = f", {dated(p, 'since')}" if "since" in p else ""
         if "drift" in p:
-            by = p["drift"] * max(self.fixed["end"] - p["since"], 0.0)
-            return f"{self.component} drifts {p['drift']:+.3g} per s ({by:+.4g} by the end){when}"
+            return f"{self.component} drifts {p['drift']:+.3g} per s ({self._drifted(p):+.4g} by the end){when}"
         return f"{self.component} reads {p['offset']:+.4g} off{when}"

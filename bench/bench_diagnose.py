@@ -165,6 +165,9 @@ SWEEP = {
     "closure_P1": ("closure", "P1", (0.2, 0.4)),       # VM2 on the pump line: warning, error
     "leakon_T3": ("leak", "T3", (0.012,)),             # into T4, from ONSET on
     "leakon_T1": ("leak", "T1", (0.01,)),
+    "spell_V2": ("closure", "V2", (0.55,)),        # VM1 closed for SPELL only, then opened again
+    "spell_P1": ("closure", "P1", (0.4,)),
+    "repaired_T3": ("leak", "T3", (0.012,)),       # into T4 from the start, repaired at REPAIRED_AT
     "shift_L1": ("sensor_offset", "L1", (0.2,)),       # a reading steps by this at SHIFT_AT
     "shift_L3": ("sensor_offset", "L3", (0.15,)),
     "shift_L4": ("sensor_offset", "L4", (0.5,)),       # the reservoir's: only the inventory sees it
@@ -176,6 +179,8 @@ SWEEP = {
 ONSET = 300.0   # s into the 600 s record
 SHIFT_AT = 302.3  # s: a sensor knocked mid-run, between two of the equation error's window starts
 DRIFT_FROM = 200.0  # s: a sensor that starts drifting
+SPELL = (200.0, 400.0)  # s: a fault switched on, then off again
+REPAIRED_AT = 300.0  # s: a leak from the start repaired
 EXCESS_BAR = 3.0  # sensor noises: an effect the calibrated datasheet replays closer than this is below the issue's bar
 
 NEW_KINDS = ("flowlaw", "sensorchar", "deadzone", "split")
@@ -204,6 +209,11 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
         tank = comp.split("_")[0]
         m.links.append(Link("leak", from_=tank, to="outside" if comp.endswith("out") else "T4", coeff=mag,
                             since=ONSET if kind == "leakon" else 0.0))
+    elif kind == "repaired":
+        m.links.append(Link("leak", from_=comp, to="T4", coeff=mag, until=REPAIRED_AT))
+    elif kind == "spell":
+        x = m.find("pump" if comp.startswith("P") else "link", comp)
+        x.closure, (x.onset, x.until) = mag, SPELL
     elif kind == "offset":
         m.find("sensor", comp).offset = mag
     elif kind == "shift":
@@ -283,10 +293,13 @@ def sweep_case(job) -> dict:
         ok = p["to"] == ("outside" if case.endswith("_out") else "T4")
         named[0] += (p["to"],)
         if case.startswith("leakon"):
-            ok = ok and p.get("not_before", -1.0) <= ONSET <= p.get("not_after", -1.0)
+            ok = ok and p.get("not_before", -1.0) <= ONSET <= p.get("not_after", -1.0) and "until" not in p
             named[0] += (f"from {p.get('since', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})",)
+        elif case.startswith("repaired"):
+            ok = ok and "since" not in p and _ended(p, REPAIRED_AT)
+            named[0] += (_until(p),)
         else:
-            ok = ok and "since" not in p
+            ok = ok and "since" not in p and "until" not in p
     if ok and want[0] == "sensor_offset":   # from the start, or since when
         p = d.findings[0]["fit"].mechanisms[-1].values()
         if case.startswith(("shift", "drift")):
@@ -296,13 +309,25 @@ def sweep_case(job) -> dict:
                          f"({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})",)
         else:
             ok = "since" not in p
-    if ok and want[0] == "closure":  # and since when
+    if ok and want[0] == "closure":  # and since when (and until when)
         p = d.findings[0]["fit"].mechanisms[-1].values()
-        ok = p["not_before"] <= ONSET <= p["not_after"]
-        named[0] += (f"from {p['onset']:g} s ({p['not_before']:g}-{p['not_after']:g})",)
+        on = SPELL[0] if case.startswith("spell") else ONSET
+        ok = p.get("not_before", -1.0) <= on <= p.get("not_after", -1.0)
+        ok = ok and (_ended(p, SPELL[1]) if case.startswith("spell") else "until" not in p)
+        named[0] += (f"from {p.get('onset', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})"
+                     + (f" {_until(p)}" if "until" in p else ""),)
     return {"case": case, "mag": mag, "seed": seed, "active": active, "ok": ok, "findings": named,
             "flagged": d.loc.flagged, "effect": replay_change(plant, sweep_plant(nominal, "clean", 0.0, seed), res),
             "excess": replay_change(plant, d.model_calibrated, res)}
+
+
+def _ended(p: dict, at: float) -> bool:
+    """A finding switched off again, with `at` in the bracket of when."""
+    return p.get("until_not_before", -1.0) <= at <= p.get("until_not_after", -1.0)
+
+
+def _until(p: dict) -> str:
+    return f"until {p.get('until', 0.0):g} s ({p.get('until_not_before', 0.0):g}-{p.get('until_not_after', 0.0):g})"
 
 
 def replay_change(plant, other, res) -> float:

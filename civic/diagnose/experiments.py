@@ -44,6 +44,11 @@ def separating_experiment(a, b, model=None) -> str:
                 f"that falls with {tank}'s level, a gain as the same factor at every command)")
     if "closure" in (ka, kb):
         c = next(m for m in (a, b) if m.name == "closure")
+        if "until" in c.fixed:
+            return (f"the plant's own test procedures now (the drain test for the drain line, the fill test "
+                    f"for the pump line) against the same tests recorded while {c.component} passed less "
+                    "(or the operators' log of the manual valves): a closure that ended leaves today's "
+                    "test normal, a standing property of the plant does not")
         return (f"the plant's own test procedures now (the drain test for the drain line, the fill test for "
                 f"the pump line) against a run before {c.fixed['onset']:g} s: a closure since then shows in "
                 "the test's class, a standing property of the plant does not change between them")

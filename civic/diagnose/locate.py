@@ -33,6 +33,7 @@ FLAG_Z = 6.0       # |mean| in standard errors above which a column is flagged
 SCAN_MAX = 10.0    # one block-mean chi-square this high (equation error): a *suspect* column
 ONSET_EDGE = 0.05  # a change point this close to either end of the record is a constant factor
 ONSET_LR = 6.0     # chi-square units: splits this close to the best one bracket the onset
+SPAN_LR = 25.0     # chi-square units: an interval (on, then off again) must beat one change by this
 IDLE_SHARE = 0.02  # a window passing less than this share of a component's typical flow: it is shut
 STEP_SECONDS = 1.0  # a reading's step: the means this long either side of a sample
 STEP_REACH = 30.0   # s: ... looked for this far outside the bracket of its balance's change
@@ -66,6 +67,9 @@ class Localisation:
     pinned: list[str] = field(default_factory=list)   # components whose coefficient the calibration pinned
     onsets: dict = field(default_factory=dict)        # pump/link -> (time, z, closure, not before, not after)
     leak_onsets: dict = field(default_factory=dict)   # tank -> (time, z, c, not before, not after): a leak
+    # the same switched off again: pump/link -> Span (closure), tank -> Span (leak, c as its share)
+    spans: dict = field(default_factory=dict)
+    leak_spans: dict = field(default_factory=dict)
     # sensor -> (time, z, step in its unit, not before, not after): its reading stepped (knocked)
     reading_steps: dict = field(default_factory=dict)
     # sensor -> (time, z, not before, not after, end of the record): its tank's balance (a tank
@@ -336,6 +340,61 @@ def change_point(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) 
             float(times[idx[near[-1] + 1], 1]))
 
 
+@dataclass
+class Span:
+    """An interval in which a balance followed a component's flow by another share than outside
+    it: a fault switched on and off again. `on`, `off` with the brackets the data give each."""
+    on: float
+    off: float
+    z: float
+    share: float
+    on_lo: float
+    on_hi: float
+    off_lo: float
+    off_hi: float
+
+
+def change_interval(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) -> Span | None:
+    """The likeliest interval in which `r` follows `q` by another share than outside it (r = a q
+    outside, b q inside; same rows and windows as `change_point`), where it beats the best single
+    change by SPAN_LR: a manual valve closed for a while, a leak repaired. Each end keeps
+    ONSET_EDGE of the windows with flow beyond it (an interval reaching an end of the record is
+    one change) and is bracketed as `change_point` brackets its onset."""
+    idx = np.flatnonzero((r != 0.0) & (np.abs(q) > IDLE_SHARE * np.percentile(np.abs(q), 90)))
+    n = idx.size
+    edge = int(np.ceil(ONSET_EDGE * n))
+    if n < 4 or n - 2 * edge < 2:
+        return None
+    x, y = q[idx], r[idx]
+    cxx, cxy = np.concatenate(([0.0], np.cumsum(x * x))), np.concatenate(([0.0], np.cumsum(x * y)))
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")   # inside: windows i..j-1
+    win, yin = cxx[j] - cxx[i], cxy[j] - cxy[i]
+    wout, yout = cxx[-1] - win, cxy[-1] - yin
+    ok = (i >= edge) & (n - j >= edge) & (j - i >= edge) & (win > 0) & (wout > 0)
+    if not ok.any():
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fit = np.where(ok, yin ** 2 / win + yout ** 2 / wout, -np.inf)   # SS the two shares explain
+        one = (cxy[1:-1] ** 2 / cxx[1:-1] + (cxy[-1] - cxy[1:-1]) ** 2 / (cxx[-1] - cxx[1:-1]))
+    one = one[(np.arange(1, n) >= edge) & (n - np.arange(1, n) >= edge)]
+    best = np.unravel_index(int(np.argmax(fit)), fit.shape)
+    s2 = max(sigma, 1e-12) ** 2
+    if one.size == 0 or (fit[best] - np.nanmax(one)) / s2 < SPAN_LR:
+        return None
+    a0, b0 = int(best[0]), int(best[1])
+    a, b = yout[a0, b0] / wout[a0, b0], yin[a0, b0] / win[a0, b0]
+    inside = (np.arange(n) >= a0) & (np.arange(n) < b0)
+    left = robust_sigma(y - np.where(inside, b, a) * x)
+    z = abs(b - a) / (max(sigma, 1e-12) * np.sqrt(1.0 / win[a0, b0] + 1.0 / wout[a0, b0]))
+    z *= max(sigma / max(left, 1e-12), 1.0)
+    # each end bracketed with the other held at its best: splits within ONSET_LR of the best
+    ons = np.flatnonzero(fit[:, b0] >= fit[best] - ONSET_LR * s2)
+    offs = np.flatnonzero(fit[a0, :] >= fit[best] - ONSET_LR * s2)
+    return Span(on=float(times[idx[a0], 0]), off=float(times[idx[b0], 0]), z=float(z), share=float(b - a),
+                on_lo=float(times[idx[max(ons[0] - 1, 0)], 0]), on_hi=float(times[idx[ons[-1]], 1]),
+                off_lo=float(times[idx[max(offs[0] - 1, 0)], 0]), off_hi=float(times[idx[min(offs[-1], n - 1)], 1]))
+
+
 def reading_step(u: np.ndarray, dt: float, lo: float, hi: float) -> tuple | None:
     """(time, z, step, not before, not after) of the sharpest step, between `lo` and `hi` s, in
     `u`, a tank's unexplained volume sample by sample (measured less the model's flows, so the
@@ -522,11 +581,15 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
             t = driven_tank(model, comp)
             if t in loc.flagged:
                 j = cols.index(t)
+                # r = +closure q on a link's source, -closure q on a pump's delivery tank
+                sign = -1.0 if any(p.name == comp for p in model.pumps) else 1.0
                 cp = change_point(R[:, j], q[comp], engine.row_times, sigma[j])
                 if cp is not None:
-                    # r = +closure q on a link's source, -closure q on a pump's delivery tank
-                    sign = -1.0 if any(p.name == comp for p in model.pumps) else 1.0
                     loc.onsets[comp] = (cp[0], cp[1], sign * cp[2], cp[3], cp[4])
+                sp = change_interval(R[:, j], q[comp], engine.row_times, sigma[j])
+                if sp is not None:
+                    sp.share *= sign
+                    loc.spans[comp] = sp
         # a leak that opened: the balance starts losing c*sqrt(h) (the leak law's regressor)
         for i, tk in enumerate(model.tanks):
             if tk.name in loc.flagged:
@@ -536,5 +599,9 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
                 cp = change_point(R[:, j], q, engine.row_times, sigma[j])
                 if cp is not None:
                     loc.leak_onsets[tk.name] = (cp[0], cp[1], -cp[2], cp[3], cp[4])
+                sp = change_interval(R[:, j], q, engine.row_times, sigma[j])
+                if sp is not None:
+                    sp.share *= -1.0
+                    loc.leak_spans[tk.name] = sp
         _reading_steps(loc, model, engine, R, sigma)
     return loc

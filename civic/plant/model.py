@@ -73,6 +73,7 @@ class Pump:
     dead_time: float = 0.0
     closure: float = 0.0
     onset: float = 0.0               # the closure acts from this time on (s from the first sample)
+    until: float = math.inf          # ... and up to this time (the valve opened again)
     min_source_volume: float = 0.0
     head_coeff: float = 0.0
     input_offset: float = 0.0
@@ -106,6 +107,8 @@ class Link:
     closure: float = 0.0
     onset: float = 0.0               # the closure acts from this time on (s from the first sample)
     since: float = 0.0               # the link passes nothing before this time (a leak that opened)
+    until: float = math.inf          # a closure acts up to this time; without one, the link passes
+                                     # nothing from then on (a leak repaired)
     exponent: float = 0.5
     min_level: float = 0.0
 
@@ -165,7 +168,7 @@ _SECTIONS = (("tank", "tanks", Tank), ("pump", "pumps", Pump), ("valve", "valves
 _FLOAT_FIELDS = {"area", "capacity", "gain", "dead_time", "closure", "min_source_volume", "head_coeff",
                  "input_offset", "tau", "coeff", "exponent", "min_level", "offset", "noise_sigma",
                  "resolution", "min", "max", "wire_scale", "level", "volume", "fraction", "onset", "since",
-                 "shift", "drift"}
+                 "until", "shift", "drift"}
 
 
 def _key(name: str) -> str:
@@ -205,7 +208,7 @@ def _dump(obj) -> dict:
         v = getattr(obj, f.name)
         if v is None or (isinstance(obj, Overflow) and f.name in ("fraction", "rest") and v == f.default) \
                 or (isinstance(obj, Sensor) and f.name == "exponent" and v == f.default) \
-                or (f.name in ("onset", "since", "shift", "drift") and v == f.default):
+                or (f.name in ("onset", "since", "until", "shift", "drift") and v == f.default):
             continue
         if isinstance(v, Overflow):
             v = _dump(v)
@@ -297,9 +300,11 @@ class PlantModel:
     def phases(self) -> list[tuple[float, "PlantModel"]]:
         """(start time, model in force) in time order: a closure with an onset acts from its onset
         on (a manual valve closed, a line clogged mid-record), a link with a `since` passes nothing
-        before it (a leak that opened); one phase when there is neither."""
+        before it (a leak that opened), and either ends at its `until` (the valve opened again,
+        the leak repaired); one phase when there is none of these."""
         late = sorted({x.onset for x in self.pumps + self.links if x.closure and x.onset > 0}
-                      | {lk.since for lk in self.links if lk.since > 0})
+                      | {lk.since for lk in self.links if lk.since > 0}
+                      | {x.until for x in self.pumps + self.links if math.isfinite(x.until)})
         if not late:
             return [(0.0, self)]
         out = []
@@ -311,16 +316,27 @@ class PlantModel:
             for lk in m.links:
                 if lk.since > 0:            # not yet there
                     lk.closure, lk.onset, lk.since = 1.0, 0.0, 0.0
+            for x in m.pumps + m.links:
+                x.until = math.inf          # what ends later is another phase
             out.append((t0, m))
         return out
 
     def from_time(self, t0: float) -> "PlantModel":
         """The model as it stands `t0` seconds in: onsets and `since` times that have passed act
-        from the start, later ones move t0 earlier (a record cut at t0)."""
+        from the start, later ones move t0 earlier (a record cut at t0); an `until` that has
+        passed ends what it ended (a closure open again, a repaired leak passing nothing)."""
         m = copy.copy(self)
         m.pumps, m.links = [copy.copy(x) for x in self.pumps], [copy.copy(x) for x in self.links]
         m.sensors = [copy.copy(s) for s in self.sensors]
         for x in m.pumps + m.links:
+            if x.until <= t0:
+                # a closure ends (a pump's `until` ends nothing else); a link without one ends
+                x.closure = 0.0 if x.closure or isinstance(x, Pump) else 1.0
+                x.onset, x.until = 0.0, math.inf
+                if isinstance(x, Link):
+                    x.since = 0.0
+            elif math.isfinite(x.until):
+                x.until -= t0
             if x.closure and x.onset > 0:
                 x.onset = max(x.onset - t0, 0.0)
         for x in m.sensors:
@@ -440,6 +456,8 @@ class PlantModel:
                 raise CivicError(f"{where}: {x.name}: closure must lie in [0, 1]")
             if not (x.onset >= 0 and math.isfinite(x.onset)):
                 raise CivicError(f"{where}: {x.name}: onset must be a time >= 0 s")
+            if not x.until > max(x.onset, getattr(x, "since", 0.0)):
+                raise CivicError(f"{where}: {x.name}: until must be a time after onset and since")
         for lk in self.links:
             if not (lk.since >= 0 and math.isfinite(lk.since)):
                 raise CivicError(f"{where}: {lk.name}: since must be a time >= 0 s")

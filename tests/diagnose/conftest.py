@@ -139,6 +139,13 @@ def make_fault(nominal, name):
         # reading down (the loop then fills T1), L3's up
         s = m.find("sensor", name.split("_")[1])
         s.drift, s.since = (-0.00075 if s.name == "L1" else 0.00075), 200.0
+    elif name == "closure_V2_for_a_while":
+        # VM1 closed 55 % from 200 s and opened again at 400 s
+        x = m.find("link", "V2")
+        x.closure, x.onset, x.until = 0.55, 200.0, 400.0
+    elif name == "leak_T3_repaired":
+        # a T3 leak into the reservoir from the start, repaired at 300 s
+        m.links.append(Link("leak", from_="T3", to="T4", coeff=0.012, until=300.0))
     elif name == "deadzone_P1":
         m.find("pump", "P1").input_offset = 0.05
     elif name == "split_T1":

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from civic.diagnose.locate import ONSET_LR, change_point, reading_step
+from civic.diagnose.locate import ONSET_LR, change_interval, change_point, reading_step
 
 
 def _windows(n, w=5.0):
@@ -26,6 +26,24 @@ def test_change_point_dates_a_share_that_changes_and_brackets_an_idle_stretch():
     assert lo <= 525.0 and hi >= 600.0 and hi - lo <= 100.0
     r_const = 0.3 * q + rng.normal(0.0, sigma, n)
     assert change_point(r_const, q, _windows(n), sigma)[1] ** 2 < 3 * ONSET_LR
+
+
+def test_change_interval_dates_both_ends_of_a_fault_that_ended():
+    """r = 0.4 q from window 60 to window 140 only (a valve closed for 400 s, opened again): the
+    interval, its share and a bracket round each end; the single change point cannot fit it. A
+    fault that stays to the end (one change) or a share that never changes: no interval."""
+    rng = np.random.default_rng(7)
+    n, sigma = 240, 0.05
+    q = 0.5 + 0.3 * np.sin(np.arange(n) / 7.0) ** 2
+    k = np.arange(n)
+    r = np.where((k >= 60) & (k < 140), 0.4 * q, 0.0) + rng.normal(0.0, sigma, n)
+    sp = change_interval(r, q, _windows(n), sigma)
+    assert (sp.on, sp.off) == (300.0, 700.0) and abs(sp.share - 0.4) < 0.02 and sp.z > 20
+    assert sp.on_lo <= 300.0 <= sp.on_hi and sp.off_lo <= 700.0 <= sp.off_hi
+    assert sp.on_hi - sp.on_lo <= 20.0 and sp.off_hi - sp.off_lo <= 20.0
+    to_the_end = np.where(k >= 60, 0.4 * q, 0.0) + rng.normal(0.0, sigma, n)
+    assert change_interval(to_the_end, q, _windows(n), sigma) is None
+    assert change_interval(0.3 * q + rng.normal(0.0, sigma, n), q, _windows(n), sigma) is None
 
 
 def test_change_point_weighs_windows_not_flow_near_the_ends():

@@ -197,6 +197,56 @@ def test_link_since_passes_nothing_before(plant, tmp_path):
     assert PlantModel.from_toml(tmp_path / "late.toml").find("link", "leak").since == k * plant.dt
 
 
+def test_until_ends_a_closure_and_a_link(plant, tmp_path):
+    """`until` ends what an onset or a `since` started: a closure from k1 to k2 runs as the
+    closed line between them and as the open one after k2; a leak until k2 passes nothing after
+    it; the closed loop honours it, and the model file keeps it (an `until` before its onset is
+    refused)."""
+    from civic.plant.control import run_closed_loop
+    from civic.plant.procedures import apply_faults
+
+    rng = np.random.default_rng(8)
+    n, k1, k2 = 1200, 300, 700
+    t = np.arange(n) * plant.dt
+    u = random_inputs(n, rng)
+    x0 = {"T1": 6.0, "T2": 5.0, "T3": 4.0, "T4": 25.0}
+
+    def state_at(run, k):
+        return {**{tk: run["volumes"][k, i] for i, tk in enumerate(plant.tank_names)},
+                **{v.name: run["openings"][k, j] for j, v in enumerate(plant.valves)}}
+
+    def rest(model, run, k):
+        return simulate(model, t[k:] - t[k], {key: val[k:] for key, val in u.items()}, state_at(run, k))
+
+    closed = apply_faults(plant, {"vm1": 0.55})
+    spell = closed.copy()
+    v2 = spell.find("link", "V2")
+    v2.onset, v2.until = k1 * plant.dt, k2 * plant.dt
+    run = simulate(spell, t, u, x0)
+    np.testing.assert_array_equal(run["volumes"][:k1 + 1], simulate(plant, t, u, x0)["volumes"][:k1 + 1])
+    np.testing.assert_allclose(run["volumes"][k1:k2 + 1], rest(closed, run, k1)["volumes"][:k2 - k1 + 1], atol=1e-12)
+    np.testing.assert_allclose(run["volumes"][k2:], rest(plant, run, k2)["volumes"], atol=1e-12)
+    repaired = plant.copy()
+    repaired.links.append(Link("leak", from_="T3", to="outside", coeff=0.05, until=k2 * plant.dt))
+    run = simulate(repaired, t, u, x0)
+    assert run["outside"][k2] > 0.5 and run["outside"][-1] == run["outside"][k2]
+    # closed loop: as the closure that stays up to `until`, then as the open plant's explicit switch
+    v2.onset, v2.until = 30.0, 90.0
+    a = run_closed_loop(spell, 120.0, controller="pi", seed=3, noise=False)
+    late = closed.copy()
+    late.find("link", "V2").onset = 30.0
+    b = run_closed_loop(late, 120.0, controller="pi", seed=3, noise=False, onset=(90.0, plant))
+    np.testing.assert_array_equal(a.volumes, b.volumes)
+    assert np.abs(a.volumes - run_closed_loop(late, 120.0, controller="pi", seed=3, noise=False).volumes).max() > 0.01
+    spell.to_toml(tmp_path / "spell.toml")
+    back = PlantModel.from_toml(tmp_path / "spell.toml").find("link", "V2")
+    assert (back.closure, back.onset, back.until) == (0.55, 30.0, 90.0)
+    assert "until" not in plant.to_toml()          # a model without one writes none
+    v2.until = 20.0
+    with pytest.raises(CivicError, match="until"):
+        spell.validate()
+
+
 def test_sensor_characteristic_reads_inverts_and_round_trips(tmp_path):
     """y = gain*level**exponent + offset: the simulator reads through it, the initial state
     inverts it, the model file keeps it (and leaves the linear default out)."""

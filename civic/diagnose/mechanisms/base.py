@@ -28,7 +28,8 @@ class Mechanism:
     counted = True      # fixed numbers set from the data count in the BIC; False: they are references
     late = False        # edits after the others (it reads what they set, e.g. a fitted sensor map)
     hidden = ()         # fixed entries for the edit only (not in values() nor the report)
-    BRACKET = ("not_before", "not_after")   # fixed entries that bracket a switch-on time: not parameters
+    # fixed entries that bracket a switch-on or switch-off time: not parameters
+    BRACKET = ("not_before", "not_after", "until_not_before", "until_not_after")
 
     # ---- parameter vector ---------------------------------------------------------------
     @property
@@ -67,6 +68,12 @@ class Mechanism:
         """The fixed value that holds the time it was switched on (`onset`, `since`), if any."""
         return next((k for k in ("onset", "since") if k in self.fixed), None)
 
+    @property
+    def switched_off(self) -> float | None:
+        """The time it stops acting, when it was switched off again mid-run (`until`: a closure
+        opened again, a leak repaired); None: to the end."""
+        return float(self.fixed["until"]) if "until" in self.fixed else None
+
     def values(self, theta=None) -> dict:
         out = dict(self.params) if theta is None else {k: float(v) for k, v in zip(self.names, theta)}
         out.update({k: v for k, v in self.fixed.items() if k not in self.hidden})
@@ -98,8 +105,11 @@ class Mechanism:
     def active_rows(self, model: PlantModel, volumes: np.ndarray):
         """Rows of a simulation of `model` (tank volumes, one row per sample) where it acts;
         None: everywhere (a flow law, a sensor map, a coefficient)."""
-        t0 = self.switched_on
-        return None if t0 is None else np.arange(len(volumes)) * model.dt >= t0
+        t0, t1 = self.switched_on, self.switched_off
+        if t0 is None and t1 is None:
+            return None
+        t = np.arange(len(volumes)) * model.dt
+        return (t >= (t0 or 0.0)) & (t < (np.inf if t1 is None else t1))
 
     def negligible(self, p: dict, model: PlantModel) -> bool:
         """True when the fitted effect is too small to matter physically (not a finding,
@@ -110,8 +120,10 @@ class Mechanism:
     @property
     def label(self) -> str:
         extra = f"->{self.fixed['to']}" if "to" in self.fixed else ""
-        if "since" in self.fixed:       # switched on mid-run: a variant beside the standing one
-            extra += f" from {self.fixed['since']:g} s"
+        if self.switch_key:             # switched on mid-run: a variant beside the standing one
+            extra += f" from {self.switched_on:g} s"
+        if "until" in self.fixed:       # ... and off again
+            extra += f" until {self.fixed['until']:g} s"
         return f"{self.name}({self.component}{extra})"
 
     def describe(self, p: dict) -> str:
@@ -150,11 +162,19 @@ ONSET_Z = 5.0      # a change point (Localisation.onsets) this many standard err
 
 def dated(p: dict, key: str) -> str:
     """'from T s on' for a mechanism switched on at p[key], with the bracket the data give that
-    time (`not_before`, `not_after`) when it is not a point."""
-    lo, hi = p.get("not_before", p[key]), p.get("not_after", p[key])
-    text = f"from {p[key]:g} s on"
-    if hi - lo > 1e-9:
-        text += f" (the change came between {lo:g} and {hi:g} s)"
+    time (`not_before`, `not_after`) when it is not a point, and 'until T s' for one switched off
+    again (`until`, its bracket `until_not_before`, `until_not_after`)."""
+    text = ""
+    if key in p:
+        lo, hi = p.get("not_before", p[key]), p.get("not_after", p[key])
+        text = f"from {p[key]:g} s on"
+        if hi - lo > 1e-9:
+            text += f" (the change came between {lo:g} and {hi:g} s)"
+    if "until" in p:
+        lo, hi = p.get("until_not_before", p["until"]), p.get("until_not_after", p["until"])
+        text = f"{text} until {p['until']:g} s".lstrip()
+        if hi - lo > 1e-9:
+            text += f" (it ended between {lo:g} and {hi:g} s)"
     return text
 
 

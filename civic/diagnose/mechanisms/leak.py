@@ -1,6 +1,8 @@
 """Leak: an extra orifice from a tank to a lower tank or outside, q = c*sqrt(h), from the start or
-from a time on (one that opened mid-run)."""
+from a time on (one that opened mid-run), possibly up to a time (one repaired)."""
 from __future__ import annotations
+
+import math
 
 from civic.plant.model import OUTSIDE, Link
 
@@ -18,7 +20,8 @@ class Leak(Mechanism):
         while any(lk.name == name for lk in model.links):
             name += "_"
         model.links.append(Link(name=name, from_=self.component, to=p["to"], coeff=float(p["c"]),
-                                law="orifice", since=float(p.get("since", 0.0))))
+                                law="orifice", since=float(p.get("since", 0.0)),
+                                until=float(p.get("until", math.inf))))
 
     @classmethod
     def candidates(cls, model, loc):
@@ -38,6 +41,15 @@ class Leak(Mechanism):
                 if z >= ONSET_Z and c > 0:
                     out.append(cls(tank, {"c": float(min(c, cmax))}, {"c": (0.0, cmax)},
                                    {"to": dest, "since": t0, "not_before": lo, "not_after": hi}))
+                elif z >= ONSET_Z and c < 0:    # stopped losing water then: repaired
+                    out.append(cls(tank, {"c": float(min(-c, cmax))}, {"c": (0.0, cmax)},
+                                   {"to": dest, "until": t0, "until_not_before": lo, "until_not_after": hi}))
+                # one that leaked for a while (`Localisation.leak_spans`): opened, then repaired
+                sp = getattr(loc, "leak_spans", {}).get(tank)
+                if sp is not None and sp.z >= ONSET_Z and sp.share > 0:
+                    out.append(cls(tank, {"c": float(min(sp.share, cmax))}, {"c": (0.0, cmax)},
+                                   {"to": dest, "since": sp.on, "not_before": sp.on_lo, "not_after": sp.on_hi,
+                                    "until": sp.off, "until_not_before": sp.off_lo, "until_not_after": sp.off_hi}))
         return out
 
     def negligible(self, p, model):
@@ -47,5 +59,5 @@ class Leak(Mechanism):
         return p["c"] < NEGLIGIBLE_SHARE * ref
 
     def describe(self, p):
-        when = f", {dated(p, 'since')}" if "since" in p else ""
+        when = f", {dated(p, 'since')}" if "since" in p or "until" in p else ""
         return f"q = {p['c']:.4g}*sqrt(h) from {self.component} to {p['to']}{when}"

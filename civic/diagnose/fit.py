@@ -527,8 +527,10 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
         # what both orders separated from the chosen one is no longer indistinguishable from it
         pooled = {v["candidate"]: v["dbic"] for v in both}
         separated = {c for c, d in pooled.items() if d - pooled[cand.label] >= ALT_DBIC}
-        alternatives = _alternatives([x for x in results if x[0].label not in separated], cand, dbic, min_gain,
-                                     pooled)
+        # alternatives judged on the chosen one's held-out rows (a candidate judged with the blocks
+        # swapped has another reference: its BIC change is no evidence against this one's)
+        alternatives = _alternatives([x for x in results if x[0].label not in separated and x[2][2] == how],
+                                     cand, dbic, min_gain, pooled)
         chosen.append(res.mechanisms[-1])
         chosen[:-1] = res.mechanisms[:-1]
         diag.findings.append({"mechanism": cand, "fit": res, "dbic": dbic, "gain": gain,

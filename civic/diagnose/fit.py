@@ -450,8 +450,9 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         # a finding the fit on all rows makes negligible beside the others was a patch for them:
         # a V1 closure for 75 s (0.39 where the blocks it was judged on saw it) took the local
         # trace of an L1 offset and fell to 0.016 once the offset joined
-        kept = [i for i, m in enumerate(final_all.mechanisms) if not m.negligible(m.values(), model)]
-        if not free and kept and len(kept) < len(mechs):
+        kept = [] if free else [i for i, m in enumerate(final_all.mechanisms)
+                                if not m.negligible(m.values(), model)]
+        if kept and len(kept) < len(mechs):
             mechs, diag.findings = [mechs[i] for i in kept], [diag.findings[i] for i in kept]
             final_all = _refit_all(prob, mechs, start)
         diag.model_improved = final_all.model

@@ -298,6 +298,13 @@ def _regimes(model: PlantModel, rec: Recording, R: np.ndarray, sigma: np.ndarray
     return out
 
 
+def _flowing_windows(r: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The windows that tell how a balance residual follows a component's flow: a residual (rows
+    of 0 carry no information) and a flow above IDLE_SHARE of its typical (a trace, a valve
+    closing on its time constant, tells nothing about the share)."""
+    return np.flatnonzero((r != 0.0) & (np.abs(q) > IDLE_SHARE * np.percentile(np.abs(q), 90)))
+
+
 def change_point(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) -> tuple | None:
     """(time, z, step, not before, not after) of the likeliest change, from a time on, in how a
     tank's balance residual `r` follows the flow `q` through one component (both per window;
@@ -311,9 +318,7 @@ def change_point(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: float) 
     over the windows without flow between them. The split leaves ONSET_EDGE of the windows with flow on either
     side (nearer: a constant factor; not of the flow's weight: a loop that drives a clogged
     line harder after the onset would push the split late)."""
-    # a window whose flow is a trace of the typical (a valve closing on its time constant)
-    # tells nothing about the share either
-    idx = np.flatnonzero((r != 0.0) & (np.abs(q) > IDLE_SHARE * np.percentile(np.abs(q), 90)))
+    idx = _flowing_windows(r, q)
     if idx.size < 4:
         return None
     x, y = q[idx], r[idx]
@@ -360,7 +365,7 @@ def change_interval(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: floa
     change by SPAN_LR: a manual valve closed for a while, a leak repaired. Each end keeps
     ONSET_EDGE of the windows with flow beyond it (an interval reaching an end of the record is
     one change) and is bracketed as `change_point` brackets its onset."""
-    idx = np.flatnonzero((r != 0.0) & (np.abs(q) > IDLE_SHARE * np.percentile(np.abs(q), 90)))
+    idx = _flowing_windows(r, q)
     n = idx.size
     edge = int(np.ceil(ONSET_EDGE * n))
     if n < 4 or n - 2 * edge < 2:

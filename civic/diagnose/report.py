@@ -64,8 +64,9 @@ def _finding_intervals(diag: Diagnosis, prev, res, mech=None) -> list[list[float
     gap = 0.01 * float(t[-1] - t[0] + model.dt)
     fitted = res.mechanisms[-1]
     p = fitted.values()
-    if fitted.switched_on is not None or fitted.switched_off is not None:
-        return _mask_intervals(fitted.active_rows(model, t), t, model.dt, gap)
+    acting = fitted.acting_at(t)
+    if acting is not None:
+        return _mask_intervals(acting, t, model.dt, gap)
     if fitted.name == "sensor_saturation":
         y = np.asarray(eng.rec.signals[fitted.component], float)
         return _mask_intervals(y >= p["max"] - 1e-9, t, model.dt, gap)

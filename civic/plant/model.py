@@ -333,8 +333,6 @@ class PlantModel:
                 # a closure ends (a pump's `until` ends nothing else); a link without one ends
                 x.closure = 0.0 if x.closure or isinstance(x, Pump) else 1.0
                 x.onset, x.until = 0.0, math.inf
-                if isinstance(x, Link):
-                    x.since = 0.0
             elif math.isfinite(x.until):
                 x.until -= t0
             if x.closure and x.onset > 0:

@@ -129,6 +129,12 @@ def test_batch_equals_scalar(plant):
         np.testing.assert_allclose(cm.run(U, x0, P[:, j]), Xb[:, :, j], atol=1e-12)
 
 
+def _state_at(plant, run, k):
+    """The tank volumes and valve openings of a simulation at sample k: a start to go on from."""
+    return {**{tk: run["volumes"][k, i] for i, tk in enumerate(plant.tank_names)},
+            **{v.name: run["openings"][k, j] for j, v in enumerate(plant.valves)}}
+
+
 def test_closure_from_its_onset_on(plant, tmp_path):
     """A closure with an onset acts from then on: before it the run is the plant's without it,
     after it the run the closed line would make from that state; batched runs switch alike,
@@ -146,8 +152,7 @@ def test_closure_from_its_onset_on(plant, tmp_path):
     late.find("link", "V2").onset = k * plant.dt
     run = simulate(late, t, u, x0)
     np.testing.assert_array_equal(run["volumes"][:k + 1], simulate(plant, t, u, x0)["volumes"][:k + 1])
-    at = {**{tk: run["volumes"][k, i] for i, tk in enumerate(plant.tank_names)},
-          **{v.name: run["openings"][k, j] for j, v in enumerate(plant.valves)}}
+    at = _state_at(plant, run, k)
     rest = simulate(closed, t[k:] - t[k], {key: val[k:] for key, val in u.items()}, at)
     np.testing.assert_allclose(run["volumes"][k:], rest["volumes"], atol=1e-12)
     assert np.abs(run["volumes"][-1] - simulate(closed, t, u, x0)["volumes"][-1]).max() > 0.1
@@ -189,8 +194,7 @@ def test_link_since_passes_nothing_before(plant, tmp_path):
     run = simulate(late, t, u, x0)
     np.testing.assert_array_equal(run["volumes"][:k + 1], simulate(plant, t, u, x0)["volumes"][:k + 1])
     assert run["outside"][k] == 0.0 and run["outside"][-1] > 0.5
-    at = {**{tk: run["volumes"][k, i] for i, tk in enumerate(plant.tank_names)},
-          **{v.name: run["openings"][k, j] for j, v in enumerate(plant.valves)}}
+    at = _state_at(plant, run, k)
     rest = simulate(leaky, t[k:] - t[k], {key: val[k:] for key, val in u.items()}, at)
     np.testing.assert_allclose(run["volumes"][k:], rest["volumes"], atol=1e-12)
     late.to_toml(tmp_path / "late.toml")
@@ -211,12 +215,8 @@ def test_until_ends_a_closure_and_a_link(plant, tmp_path):
     u = random_inputs(n, rng)
     x0 = {"T1": 6.0, "T2": 5.0, "T3": 4.0, "T4": 25.0}
 
-    def state_at(run, k):
-        return {**{tk: run["volumes"][k, i] for i, tk in enumerate(plant.tank_names)},
-                **{v.name: run["openings"][k, j] for j, v in enumerate(plant.valves)}}
-
     def rest(model, run, k):
-        return simulate(model, t[k:] - t[k], {key: val[k:] for key, val in u.items()}, state_at(run, k))
+        return simulate(model, t[k:] - t[k], {key: val[k:] for key, val in u.items()}, _state_at(plant, run, k))
 
     closed = apply_faults(plant, {"vm1": 0.55})
     spell = closed.copy()

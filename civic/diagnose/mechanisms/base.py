@@ -105,10 +105,14 @@ class Mechanism:
     def active_rows(self, model: PlantModel, volumes: np.ndarray):
         """Rows of a simulation of `model` (tank volumes, one row per sample) where it acts;
         None: everywhere (a flow law, a sensor map, a coefficient)."""
+        return self.acting_at(np.arange(len(volumes)) * model.dt)
+
+    def acting_at(self, t: np.ndarray):
+        """Which of the times `t` (s) fall between its switch-on and switch-off; None when it was
+        switched neither on nor off mid-run."""
         t0, t1 = self.switched_on, self.switched_off
         if t0 is None and t1 is None:
             return None
-        t = np.arange(len(volumes)) * model.dt
         return (t >= (t0 or 0.0)) & (t < (np.inf if t1 is None else t1))
 
     def negligible(self, p: dict, model: PlantModel) -> bool:
@@ -122,8 +126,8 @@ class Mechanism:
         extra = f"->{self.fixed['to']}" if "to" in self.fixed else ""
         if self.switch_key:             # switched on mid-run: a variant beside the standing one
             extra += f" from {self.switched_on:g} s"
-        if "until" in self.fixed:       # ... and off again
-            extra += f" until {self.fixed['until']:g} s"
+        if self.switched_off is not None:   # ... and off again
+            extra += f" until {self.switched_off:g} s"
         return f"{self.name}({self.component}{extra})"
 
     def describe(self, p: dict) -> str:

@@ -171,6 +171,9 @@ SWEEP = {
     "shift_L1": ("sensor_offset", "L1", (0.2,)),       # a reading steps by this at SHIFT_AT
     "shift_L3": ("sensor_offset", "L3", (0.15,)),
     "shift_L4": ("sensor_offset", "L4", (0.5,)),       # the reservoir's: only the inventory sees it
+    "glitch_L1": ("sensor_offset", "L1", (0.3,)),      # a reading off by this for SPELL only
+    "glitch_L3": ("sensor_offset", "L3", (0.2,)),
+    "righted_L1": ("sensor_offset", "L1", (0.3,)),     # a reading off from the start, set right at REPAIRED_AT
     "drift_L1": ("sensor_offset", "L1", (-0.00075,)),  # a reading drifts by this per s from DRIFT_FROM
     "drift_L3": ("sensor_offset", "L3", (0.00075,)),   # (0.3 L by the end)
     "drift_L4": ("sensor_offset", "L4", (0.0015,)),
@@ -219,6 +222,12 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
     elif kind == "shift":
         s = m.find("sensor", comp)
         s.shift, s.since = mag, SHIFT_AT
+    elif kind == "glitch":
+        s = m.find("sensor", comp)
+        s.shift, (s.since, s.until) = mag, SPELL
+    elif kind == "righted":
+        s = m.find("sensor", comp)
+        s.shift, s.until = mag, REPAIRED_AT
     elif kind == "drift":
         s = m.find("sensor", comp)
         s.drift, s.since = mag, DRIFT_FROM
@@ -302,13 +311,18 @@ def sweep_case(job) -> dict:
             ok = ok and "since" not in p and "until" not in p
     if ok and want[0] == "sensor_offset":   # from the start, or since when
         p = d.findings[0]["fit"].mechanisms[-1].values()
-        if case.startswith(("shift", "drift")):
-            at = SHIFT_AT if case.startswith("shift") else DRIFT_FROM
+        if case.startswith(("shift", "drift", "glitch")):
+            at = {"shift": SHIFT_AT, "drift": DRIFT_FROM, "glitch": SPELL[0]}[case.partition("_")[0]]
             ok = p.get("not_before", -1.0) <= at <= p.get("not_after", -1.0) and ("drift" in p) == case.startswith("drift")
+            ok = ok and (_ended(p, SPELL[1]) if case.startswith("glitch") else "until" not in p)
             named[0] += (("drifting " if "drift" in p else "") + f"from {p.get('since', 0.0):g} s "
-                         f"({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})",)
+                         f"({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})"
+                         + (f" {_until(p)}" if "until" in p else ""),)
+        elif case.startswith("righted"):
+            ok = "since" not in p and _ended(p, REPAIRED_AT)
+            named[0] += (_until(p),)
         else:
-            ok = "since" not in p
+            ok = "since" not in p and "until" not in p
     if ok and want[0] == "closure":  # and since when (and until when)
         p = d.findings[0]["fit"].mechanisms[-1].values()
         on = SPELL[0] if case.startswith("spell") else ONSET

@@ -72,6 +72,9 @@ class Localisation:
     leak_spans: dict = field(default_factory=dict)
     # sensor -> (time, z, step in its unit, not before, not after): its reading stepped (knocked)
     reading_steps: dict = field(default_factory=dict)
+    # sensor -> (on, off, step in its unit, on not before, on not after, off not before, off not
+    # after): ... and stepped back later (a glitch over, a knocked sensor set right again)
+    reading_spells: dict = field(default_factory=dict)
     # sensor -> (time, z, not before, not after, end of the record): its tank's balance (a tank
     # that drives no flow: the inventory's) changed from that time on; a reading may drift from then
     reading_changes: dict = field(default_factory=dict)
@@ -400,12 +403,13 @@ def change_interval(r: np.ndarray, q: np.ndarray, times: np.ndarray, sigma: floa
                 off_lo=float(times[idx[max(offs[0] - 1, 0)], 0]), off_hi=float(times[idx[min(offs[-1], n - 1)], 1]))
 
 
-def reading_step(u: np.ndarray, dt: float, lo: float, hi: float) -> tuple | None:
+def reading_step(u: np.ndarray, dt: float, lo: float, hi: float, sign: float = 0.0) -> tuple | None:
     """(time, z, step, not before, not after) of the sharpest step, between `lo` and `hi` s, in
     `u`, a tank's unexplained volume sample by sample (measured less the model's flows, so the
     level's own motion is gone): the mean of the STEP_SECONDS after each sample less that of
-    those before, in standard errors of the sample noise. The step came at a sample whose
-    difference is within 2 standard errors of the largest (a sharp step: a sample or two)."""
+    those before, in standard errors of the sample noise (`sign` != 0: only steps of that
+    sign). The step came at a sample whose difference is within 2 standard errors of the
+    largest (a sharp step: a sample or two)."""
     m = max(2, int(round(STEP_SECONDS / dt)))
     c = np.concatenate(([0.0], np.cumsum(u)))
     k = np.arange(m, len(u) - m + 1)                   # the step between samples k-1 and k
@@ -413,6 +417,10 @@ def reading_step(u: np.ndarray, dt: float, lo: float, hi: float) -> tuple | None
     if k.size == 0:
         return None
     d = (c[k + m] - 2.0 * c[k] + c[k - m]) / m
+    if sign:
+        k, d = k[d * sign > 0], d[d * sign > 0]
+        if k.size == 0:
+            return None
     se = max(robust_sigma(np.diff(u)) / np.sqrt(2.0), 1e-12) * np.sqrt(2.0 / m)
     j = int(np.argmax(np.abs(d)))
     near = k[np.abs(d) >= np.abs(d[j]) - 2.0 * se]
@@ -452,6 +460,12 @@ def _reading_steps(loc: Localisation, model: PlantModel, engine, R: np.ndarray, 
             step = max(found, key=lambda x: x[1])
             per_litre = sensor.gain / (tk.area if sensor.quantity == "level" else 1.0)
             loc.reading_steps[sensor.name] = (step[0], step[1], step[2] * per_litre, step[3], step[4])
+            # and back again (the sharpest step of the other sign, out of the noise): the
+            # reading was off for a spell only
+            back = reading_step(u, engine.dt, 0.0, end, sign=-np.sign(step[2]))
+            if back is not None and back[1] >= ONSET_Z:
+                on, off = sorted((step, back))
+                loc.reading_spells[sensor.name] = (on[0], off[0], on[2] * per_litre, on[3], on[4], off[3], off[4])
 
 
 def driven_tank(model: PlantModel, component: str) -> str | None:

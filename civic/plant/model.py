@@ -130,6 +130,7 @@ class Sensor:
     shift: float = 0.0      # added to the offset from `since` on: a sensor knocked or re-zeroed mid-run
     drift: float = 0.0      # per second, added from `since` on: a sensor that drifts (fouling, ageing)
     since: float = 0.0      # s from the first sample
+    until: float = math.inf  # a step ends here (a knocked sensor set right again, a glitch over)
 
     @property
     def moves(self) -> bool:
@@ -141,10 +142,10 @@ class Sensor:
         if not self.moves:
             return self.offset
         if t is None:
-            return self.offset + (self.shift if self.since <= 0.0 else 0.0)
+            return self.offset + (self.shift if self.since <= 0.0 < self.until else 0.0)
         t = np.asarray(t, float)
-        return (self.offset + np.where(t >= self.since - 1e-9, self.shift, 0.0)
-                + self.drift * np.maximum(t - self.since, 0.0))
+        stepped = (t >= self.since - 1e-9) & (t < self.until - 1e-9)
+        return self.offset + np.where(stepped, self.shift, 0.0) + self.drift * np.maximum(t - self.since, 0.0)
 
     def read(self, q, t=None):
         """The reading for a quantity at times `t` (before noise, resolution and clip)."""
@@ -340,6 +341,10 @@ class PlantModel:
         for x in m.sensors:
             if x.drift and x.since < t0:     # what it drifted by t0 stands from the start
                 x.shift += x.drift * (t0 - x.since)
+            if x.until <= t0:                # a step that ended is gone
+                x.shift, x.until = 0.0, math.inf
+            elif math.isfinite(x.until):
+                x.until -= t0
         for x in m.links + m.sensors:
             x.since = max(x.since - t0, 0.0)
         return m
@@ -427,6 +432,10 @@ class PlantModel:
                 raise CivicError(f"{where}: sensor {s.name}: since must be a time >= 0 s")
             if not math.isfinite(s.drift):
                 raise CivicError(f"{where}: sensor {s.name}: drift must be a finite rate")
+            if not s.until > s.since:
+                raise CivicError(f"{where}: sensor {s.name}: until must be a time after since")
+            if math.isfinite(s.until) and s.drift:
+                raise CivicError(f"{where}: sensor {s.name}: until ends a step (shift), not a drift")
         for t in self.tanks:
             if not (t.area > 0):
                 raise CivicError(f"{where}: tank {t.name}: area must be > 0")

@@ -146,6 +146,14 @@ def make_fault(nominal, name):
     elif name == "leak_T3_repaired":
         # a T3 leak into the reservoir from the start, repaired at 300 s
         m.links.append(Link("leak", from_="T3", to="T4", coeff=0.012, until=300.0))
+    elif name == "glitch_L3":
+        # L3's reading 0.2 L high from 200 s, right again from 400 s (a glitch over)
+        s = m.find("sensor", "L3")
+        s.shift, s.since, s.until = 0.2, 200.0, 400.0
+    elif name == "righted_L1":
+        # L1's reading 0.3 L high from the start, set right at 300 s
+        s = m.find("sensor", "L1")
+        s.shift, s.until = 0.3, 300.0
     elif name == "deadzone_P1":
         m.find("pump", "P1").input_offset = 0.05
     elif name == "split_T1":

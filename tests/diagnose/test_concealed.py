@@ -80,20 +80,23 @@ def test_leak_that_opens_mid_run_is_dated(closed_loop_case, nominal):
 
 @pytest.mark.parametrize("case,mechanism,component,size,on,off", [
     ("closure_V2_for_a_while", "closure", "V2", 0.55, 200.0, 400.0),
-    ("leak_T3_repaired", "leak", "T3", 0.012, None, 300.0)])
+    ("leak_T3_repaired", "leak", "T3", 0.012, None, 300.0),
+    ("glitch_L3", "sensor_offset", "L3", 0.2, 200.0, 400.0),
+    ("righted_L1", "sensor_offset", "L1", 0.3, None, 300.0)])
 def test_fault_that_ended_mid_run_is_dated_at_both_ends(closed_loop_case, nominal, case, mechanism,
                                                         component, size, on, off):
-    """A fault switched off again (VM1 closed from 200 s to 400 s; a T3 leak repaired at 300 s):
-    the one mechanism, its size (not the record's average: the V2 closure was named 0.31 from
-    165 s or a valve characteristic before), active from its onset (or the start) until it
-    ended, each end bracketed; the report says so."""
+    """A fault switched off again (VM1 closed from 200 s to 400 s; a T3 leak repaired at 300 s;
+    L3 reading high from 200 s to 400 s; L1 reading high until set right at 300 s): the one
+    mechanism, its size (not the record's average: the V2 closure was named 0.31 from 165 s or
+    a valve characteristic before, the L3 glitch a T2 leak), active from its onset (or the
+    start) until it ended, each end bracketed; the report says so."""
     from civic.diagnose.report import build_report
 
     rec = closed_loop_case(case)
     d = diagnose(nominal, rec)
     assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [(mechanism, component)]
     p = d.final_all.mechanisms[0].values()
-    assert abs(p["closure" if mechanism == "closure" else "c"] - size) < 0.05 * size, p
+    assert abs(p[{"closure": "closure", "leak": "c", "sensor_offset": "offset"}[mechanism]] - size) < 0.05 * size, p
     assert p["until_not_before"] <= off <= p["until_not_after"] and p["until_not_after"] - p["until_not_before"] <= 60, p
     assert ("onset" in p or "since" in p) == (on is not None), p
     if on is not None:

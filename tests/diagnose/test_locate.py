@@ -90,3 +90,8 @@ def test_reading_step_dates_a_step_to_the_sample_and_ignores_drift():
     assert step == pytest.approx(-0.1, abs=0.03) and z > 5      # 1 s either side: se 0.009
     assert reading_step(u, dt, 320.0, 400.0)[1] < 5.0
     assert reading_step(rng.normal(0.0, 0.02, n), dt, 0.0, 600.0)[1] < 5.0
+    # a step down and (sign +1) the sharpest step up: none out of the noise, until it steps back
+    assert reading_step(u, dt, 0.0, 600.0, sign=1.0)[1] < 5.0
+    back = u + np.where(np.arange(n) >= 4517, 0.1, 0.0)
+    when, z, step, lo, hi = reading_step(back, dt, 0.0, 600.0, sign=1.0)
+    assert when == pytest.approx(451.7) and step == pytest.approx(0.1, abs=0.03) and z > 5

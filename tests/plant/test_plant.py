@@ -309,6 +309,34 @@ def test_sensor_shift_from_a_time_on(tmp_path):
     assert a.volumes[-1, 2] - b.volumes[-1, 2] == pytest.approx(0.2, abs=0.05)
 
 
+def test_sensor_shift_until_a_time(tmp_path):
+    """A reading off for a spell (a glitch over, a knocked sensor set right): `shift` from
+    `since` up to `until` only, the initial state reading the first sample whichever side of
+    the spell it is; a record cut after the spell has none; the model file keeps it; an `until`
+    before `since`, or one on a drift, is refused."""
+    from civic.plant.simulate import initial_state
+
+    m = single_tank(coeff=0.0, gain=0.3)
+    s = m.sensors[0]
+    s.shift, s.since, s.until = 0.25, 5.0, 12.0
+    t = np.arange(200) * 0.1
+    r = simulate(m, t, {"u": np.ones(200)}, {"A": 0.2})
+    np.testing.assert_allclose(r["y"], 0.2 + 0.3 * t + np.where((t >= 5.0) & (t < 12.0), 0.25, 0.0), atol=1e-12)
+    assert m.from_time(15.0).sensors[0].shift == 0.0 and m.from_time(8.0).sensors[0].until == 4.0
+    s.since = 0.0                      # off from the start: the first sample reads it
+    r = simulate(m, t, {"u": np.ones(200)}, {"A": 0.2})
+    assert initial_state(m, {"y": r["y"]})["A"] == pytest.approx(0.2, abs=1e-12)
+    m.to_toml(tmp_path / "m.toml")
+    assert PlantModel.from_toml(tmp_path / "m.toml").sensors[0].until == 12.0
+    assert "until" not in single_tank().to_toml().split("[[sensor]]")[1]
+    s.until = 0.0
+    with pytest.raises(CivicError, match="until must be a time after since"):
+        m.validate()
+    s.until, s.shift, s.drift = 12.0, 0.0, 0.01
+    with pytest.raises(CivicError, match="until ends a step"):
+        m.validate()
+
+
 def test_sensor_drift_from_a_time_on(tmp_path):
     """A sensor that drifts: its reading gains `drift` per second from `since` on, in the
     open-loop simulation and in the closed loop alike; a record cut later keeps what it drifted

@@ -1,6 +1,7 @@
 """Sensor offset: y = gain*quantity + offset with an offset the datasheet does not have, from
-the start or from a time on (a sensor knocked or re-zeroed mid-run: its reading steps), or one
-that grows from a time on (a sensor drifting: fouling, ageing, a warming transmitter)."""
+the start or from a time on (a sensor knocked or re-zeroed mid-run: its reading steps), for a
+spell only (a glitch over, a knocked sensor set right: its reading steps back), or one that
+grows from a time on (a sensor drifting: fouling, ageing, a warming transmitter)."""
 from __future__ import annotations
 
 from ..compare import INVENTORY_BAND, INVENTORY_SPREAD
@@ -18,7 +19,7 @@ class SensorOffset(Mechanism):
 
     @property
     def n_params(self) -> int:
-        return super().n_params + (1 if "since" in self.fixed else 0)   # the time is the data's too
+        return super().n_params + ("since" in self.fixed) + ("until" in self.fixed)   # the times are the data's too
 
     @property
     def label(self) -> str:
@@ -29,8 +30,9 @@ class SensorOffset(Mechanism):
         s = model.find("sensor", self.component)
         if "drift" in p:
             s.drift, s.since = float(p["drift"]), float(p["since"])
-        elif "since" in p:
-            s.shift, s.since = float(p["offset"]), float(p["since"])
+        elif "since" in p or "until" in p:
+            s.shift, s.since = float(p["offset"]), float(p.get("since", 0.0))
+            s.until = float(p.get("until", s.until))
         else:
             s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
 
@@ -57,6 +59,16 @@ class SensorOffset(Mechanism):
                         step = min(max(step, bounds["offset"][0]), bounds["offset"][1])
                         out.append(cls(s.name, {"offset": step}, dict(bounds),
                                        {"base": s.offset, "since": t0, "not_before": lo, "not_after": hi}))
+                        # ... or off from the start until then (set right at the step)
+                        out.append(cls(s.name, {"offset": -step}, dict(bounds),
+                                       {"base": s.offset, "until": t0, "until_not_before": lo, "until_not_after": hi}))
+                    # a reading that stepped and stepped back: off for that spell only
+                    if s.name in getattr(loc, "reading_spells", {}):
+                        on, off, step, on_lo, on_hi, off_lo, off_hi = loc.reading_spells[s.name]
+                        step = min(max(step, bounds["offset"][0]), bounds["offset"][1])
+                        out.append(cls(s.name, {"offset": step}, dict(bounds),
+                                       {"base": s.offset, "since": on, "not_before": on_lo, "not_after": on_hi,
+                                        "until": off, "until_not_before": off_lo, "until_not_after": off_hi}))
                     # its tank's balance changed from a time on: a reading drifting from then or
                     # before (a ramp grows out of the noise late: the change point of a drift of
                     # 0.3 L in 400 s from 200 s fell at 285 s), from DRIFT_STARTS times between
@@ -92,7 +104,7 @@ class SensorOffset(Mechanism):
         return abs(p["offset"]) < max(2.0 * s.noise_sigma, 2.0 * s.resolution, OFFSET_FLOOR)
 
     def describe(self, p):
-        when = f", {dated(p, 'since')}" if "since" in p else ""
+        when = f", {dated(p, 'since')}" if "since" in p or "until" in p else ""
         if "drift" in p:
             return f"{self.component} drifts {p['drift']:+.3g} per s ({self._drifted(p):+.4g} by the end){when}"
         return f"{self.component} reads {p['offset']:+.4g} off{when}"

@@ -686,6 +686,10 @@ def load_recording(path, model: PlantModel, plant: str | None = None) -> Recordi
     if len(msgs) == 0:
         raise CivicError(f"{path}: no plant messages")
     msgs = msgs[msgs["src"] == msgs["src"][0]]
+    # a capture merged out of time order is put back in it; a message captured twice (the
+    # same counter right after itself: a retransmitting tap, a mirrored port) counts once
+    msgs = msgs[np.argsort(msgs["t"], kind="stable")]
+    msgs = msgs[np.concatenate(([True], msgs["seq"][1:] != msgs["seq"][:-1]))]
     fields = {name: msgs[name].astype(np.int64) for name in WIRE_COLUMNS}
     return Recording(msgs["t"] - msgs["t"][0], from_wire(model, fields), fields, path)
 

@@ -694,6 +694,29 @@ def test_load_recording_time_columns_and_plant_address(plant, tmp_path):
         load_recording(tmp_path / "two.pcap", plant, plant="10.0.0.9")
 
 
+def test_load_recording_puts_a_capture_back_in_order_and_counts_a_message_once(plant, tmp_path):
+    """A capture merged out of time order is read in time order; a message captured twice (the
+    same counter right after itself) counts once: both read as the clean capture (they stopped
+    `civic diagnose` with 'time stamps are not increasing')."""
+    from civic.wire import build_frames, write_pcap
+
+    n = 40
+    t = 1767225600.0 + np.arange(n) * plant.dt
+    sig = {name: np.linspace(2.0, 6.0, n) for name in ("L1", "L2", "L3", "L4")}
+    sig.update({name: np.full(n, 0.5) for name in ("p1", "v1", "v2")})
+    frames = build_frames(to_wire(plant, sig), src_ip="10.0.0.1", seq0=0)
+    write_pcap(tmp_path / "clean.pcap", t, frames)
+    clean = load_recording(tmp_path / "clean.pcap", plant)
+    order = np.r_[0:20, 21, 20, 22:n]                  # two messages written swapped
+    write_pcap(tmp_path / "swapped.pcap", t[order], frames[order])
+    twice = np.r_[0:20, 19, 20:n]                      # one captured twice
+    write_pcap(tmp_path / "twice.pcap", t[twice], frames[twice])
+    for name in ("swapped", "twice"):
+        rec = load_recording(tmp_path / f"{name}.pcap", plant)
+        np.testing.assert_array_equal(rec.t, clean.t)
+        np.testing.assert_array_equal(rec.signals["L2"], clean.signals["L2"])
+
+
 def test_values_outside_the_models_range_are_named(plant):
     """Commands beyond an input's range are held at its limits and readings beyond a sensor's
     range cannot be read: both are said, per signal, with how many and how far."""

@@ -12,7 +12,7 @@ def register(sub) -> None:
         "diagnose", help="find mechanisms (leaks, dead times, offsets...) the model lacks",
         description="Compare a recording with the nominal plant model (mass-balance equation error "
                     "when every tank is measured, open-loop simulation otherwise), calibrate the "
-                    "coefficients within +-5 %%, localise the mismatch, fit the mechanism catalogue "
+                    "coefficients within +-5 %, localise the mismatch, fit the mechanism catalogue "
                     "and keep what is significant on held-out data.")
     p.add_argument("recording", metavar="RECORDING", help="pcap (wire format) or CSV (t_s, inputs, signals)")
     p.add_argument("--model", metavar="FILE", help="nominal model (default: configs/plant.toml)")

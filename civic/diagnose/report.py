@@ -13,6 +13,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 
 from civic.errors import CivicError
 from civic.plant.figures import save_figure
@@ -22,7 +23,7 @@ from civic.plant.simulate import Recording, initial_state, simulate
 from .compare import INVENTORY, EquationError, SimulationError, rmse
 from .fit import Diagnosis
 from .locate import mask_intervals, median_nonzero, merge
-from scipy.ndimage import uniform_filter1d
+from .mechanisms.base import Mechanism
 
 SHORT_HORIZON_S = 30.0
 
@@ -371,8 +372,10 @@ def print_summary(report: dict, console=None) -> None:
         for c in ("#", "mechanism", "component", "parameters", "held-out dBIC", "intervals (s)"):
             t.add_column(c)
         for i, f in enumerate(report["findings"], 1):
+            # the brackets of its times are in the JSON and the evidence: the table keeps to the values
             params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-                               for k, v in f["parameters"].items() if k not in ("path", "nominal"))
+                               for k, v in f["parameters"].items()
+                               if k not in ("path", "nominal") and k not in Mechanism.BRACKET)
             iv = f["intervals"]
             ivs = ", ".join(f"{a:g}-{b:g}" for a, b in iv[:3]) + (f" (+{len(iv) - 3})" if len(iv) > 3 else "")
             t.add_row(str(i), f["mechanism"], str(f["component"]), params, f"{f['heldout_dbic']:+.1f}", ivs)

@@ -33,9 +33,10 @@ from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording
 
 from .compare import INVENTORY, INVENTORY_SPREAD, EquationError, SimulationError, fully_measured
-from .locate import ONSET_LR, Localisation, localise, suspect_everywhere
+from .locate import ONSET_LR, Localisation, localise, still_flagged, suspect_everywhere
 from .noise import noise_sigma, robust_sigma
 from .mechanisms import CATALOGUE, Coefficient, Mechanism, coefficient_paths
+from .mechanisms.base import tanks_of
 from .mechanisms.coefficient import CAL_SPREAD
 MIN_DBIC = 10.0
 MIN_GAIN = 0.10
@@ -46,6 +47,7 @@ MIN_GAIN = 0.10
 # averaged into V2's coefficient gained 7.5 % at BIC -17 (exponent 0.443)
 MIN_GAIN_FIRST = 0.05
 MAX_FINDINGS = 3
+UNEXPLAINED_BAR = 2.0   # a balance the findings so far leave flagged at this many times the bar
 REDATE_REACH = 30.0     # s: a finding switched on mid-run is dated again this far outside its bracket
 ORDER_AGREEMENT = 0.25  # a later finding: each block order's held-out gain at least this share of the other's
 # a candidate whose held-out BIC is within this of the chosen one's (and significant on its own)
@@ -475,6 +477,7 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
     act is judged with the blocks swapped, against the current model refitted the same way."""
     model = prob.model
     current, chosen = base, []
+    all_candidates = list(candidates)
     planned = len(candidates)
     if progress:
         progress(0, planned, "candidates")
@@ -539,9 +542,17 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
                               **({"held_out": how} if how else {}),
                               **({"both_orders": both, "dbic_both_orders": pooled[cand.label]} if both else {})})
         current = res
-        # later rounds: only what helped on its own in the first round (or shares its component)
+        # later rounds: what helped on its own in the first round, and what acts on a tank whose
+        # balance the findings so far leave clearly flagged (a second fault's own candidates may not
+        # help on their own while the first one's mismatch dominates: a T1 leak beside a V2 closure
+        # fitted +3 alone, and left T1's balance at 7x the bar; with both in, T2's stood at 1.2x,
+        # and a 75 s pipe23 closure re-admitted there patched it)
         helped = {t["candidate"] for t in diag.tried if t["dbic"] < 0}
-        candidates = [c for c in candidates if c.component != cand.component and c.label in helped]
+        unexplained = set(still_flagged(prob.residuals(res.model, res.x0_extra), list(prob.engine.columns),
+                                        UNEXPLAINED_BAR))
+        unexplained &= set(model.tank_names)
+        candidates = [c for c in all_candidates if all(c.component != m.component for m in chosen)
+                      and (c.label in helped or tanks_of(model, c.component) & unexplained)]
         planned += len(candidates)
     return chosen, current
 

@@ -491,6 +491,28 @@ def suspect_everywhere(loc: Localisation, model: PlantModel) -> None:
     loc.tanks += [t for t in model.tank_names if t not in loc.tanks]
 
 
+def flag_bar(rows: int) -> float:
+    """The block statistic's bar for a column of `rows` rows: few blocks (a short test run) are
+    noisier, the bar higher."""
+    from scipy.stats import chi2
+
+    nb = max(1, rows // BLOCK)
+    return FLAG_RATIO * max(1.0, (chi2.ppf(0.999, nb) / nb) / (chi2.ppf(0.999, 20) / 20))
+
+
+def flags(score: dict, bar: float) -> bool:
+    """A column's scores (`column_scores`) carry mismatch."""
+    return score["ratio"] > bar or abs(score["z"]) > FLAG_Z
+
+
+def still_flagged(R: np.ndarray, columns: list[str], scale: float = 1.0) -> list[str]:
+    """The columns (the inventory aside) that residuals `R`, in standard deviations, still flag
+    (the block statistic's bar times `scale`): what a model with the findings so far leaves
+    unexplained."""
+    bar = scale * flag_bar(R.shape[0])
+    return [c for c, s in zip(columns, column_scores(R, np.ones(R.shape[1]))) if c != INVENTORY and flags(s, bar)]
+
+
 def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np.ndarray,
              pinned: tuple = ()) -> Localisation:
     """`pinned`: components whose coefficient the calibration left at the datasheet spread's edge."""
@@ -498,10 +520,7 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
     loc = Localisation(kind=engine.kind, columns=cols, pinned=list(pinned))
     scores = column_scores(R, sigma)
     loc.scores = {c: s for c, s in zip(cols, scores)}
-    # few blocks (a short test run): the block statistic is noisier, the bar higher
-    from scipy.stats import chi2
-    nb = max(1, R.shape[0] // BLOCK)
-    bar = FLAG_RATIO * max(1.0, (chi2.ppf(0.999, nb) / nb) / (chi2.ppf(0.999, 20) / 20))
+    bar = flag_bar(R.shape[0])
     for c, s in loc.scores.items():
         if c == INVENTORY:
             # one number repeated, not independent rows: flagged when the measured total sits
@@ -509,7 +528,7 @@ def localise(model: PlantModel, rec: Recording, engine, R: np.ndarray, sigma: np
             j = cols.index(c)
             if abs(median_nonzero(R[:, j])) > INVENTORY_BAND * sigma[j]:
                 loc.flagged.append(c)
-        elif s["ratio"] > bar or abs(s["z"]) > FLAG_Z:
+        elif flags(s, bar):
             loc.flagged.append(c)
     loc.flagged.sort(key=lambda c: -loc.scores[c]["ratio"])
     if engine.kind == "equation":

@@ -27,6 +27,7 @@ def real_plant(nominal):
 
 
 SWEEP_SEED1 = (1.0335, 1.0257, 1.0378, 1.0080)   # the sweep's seed-1 draw
+SWEEP_SEED2 = (1.0354, 1.0028, 1.0252, 0.9963)   # ... and seed-2's
 
 
 def draw_calibration(m, nominal, factors):
@@ -123,6 +124,12 @@ def make_fault(nominal, name):
         # of the flow, which the calibration's pump gain takes whole at the -5 % edge
         draw_calibration(m, nominal, (1.0273, 0.9817, 1.0126, 0.9975))
         m.find("pump", "P1").head_coeff = 0.02
+    elif name == "closure_V2_from300+leak_T1":
+        # the sweep's seed-2 plant, VM1 closed 55 % from 300 s and a T1 leak into the reservoir
+        draw_calibration(m, nominal, SWEEP_SEED2)
+        x = m.find("link", "V2")
+        x.closure, x.onset = 0.55, 300.0
+        m.links.append(Link("leak", from_="T1", to="T4", coeff=0.010, law="orifice"))
     elif name == "leak_T1+deadtime_V2":
         # two concealed effects at once
         m.links.append(Link("leak", from_="T1", to="T4", coeff=0.010, law="orifice"))

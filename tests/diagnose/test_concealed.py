@@ -62,6 +62,17 @@ def test_two_concealed_effects_are_both_named(closed_loop_case, nominal):
         [("dead_time", "V2"), ("leak", "T1")]
 
 
+def test_second_fault_is_sought_where_the_first_does_not_act(closed_loop_case, nominal):
+    """VM1 closed from 300 s and a T1 leak: the closure dominates, and the leak fitted alone
+    (closure unmodelled) did not help (held-out dBIC +3), so later rounds, which try what helped
+    in the first, never tried it. With the closure in, T1's balance stays flagged (7x the bar):
+    its candidates are tried again beside the closure, and the leak is named."""
+    d = diagnose(nominal, closed_loop_case("closure_V2_from300+leak_T1", seed=2))
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == \
+        [("closure", "V2"), ("leak", "T1")]
+    assert abs(d.final_all.mechanisms[1].values()["c"] - 0.010) < 0.002
+
+
 def test_leak_that_opens_mid_run_is_dated(closed_loop_case, nominal):
     """A T3 leak that opens 300 s into the record: a leak from then on (its onset bracketed, its
     coefficient the leak's, not the record's average), active from there; the report says so."""

@@ -160,6 +160,19 @@ def tanks_touching(model: PlantModel, tank: str) -> set[str]:
     return out
 
 
+def tanks_of(model: PlantModel, component: str) -> set[str]:
+    """The tanks a component acts on: a tank itself, a pump's or a link's two ends (a valve's:
+    those of the links it sets), a sensor's tank."""
+    if component in model.tank_names:
+        return {component}
+    out = set()
+    for x in model.pumps + model.links:
+        if component in (x.name, getattr(x, "valve", None)):
+            out |= {x.from_, x.to}
+    out |= {s.tank for s in model.sensors if s.name == component}
+    return out & set(model.tank_names)
+
+
 RIM_SHARE = 0.02   # a plateau within 2 % below a tank's rim is at the rim
 ONSET_Z = 5.0      # a change point (Localisation.onsets) this many standard errors: worth a fit
 

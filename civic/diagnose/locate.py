@@ -72,8 +72,8 @@ class Localisation:
     leak_spans: dict = field(default_factory=dict)
     # sensor -> (time, z, step in its unit, not before, not after): its reading stepped (knocked)
     reading_steps: dict = field(default_factory=dict)
-    # sensor -> (on, off, step in its unit, on not before, on not after, off not before, off not
-    # after): ... and stepped back later (a glitch over, a knocked sensor set right again)
+    # sensor -> Span (the step in its unit as its share): ... and stepped back later (a glitch
+    # over, a knocked sensor set right again)
     reading_spells: dict = field(default_factory=dict)
     # sensor -> (time, z, not before, not after, end of the record): its tank's balance (a tank
     # that drives no flow: the inventory's) changed from that time on; a reading may drift from then
@@ -465,7 +465,9 @@ def _reading_steps(loc: Localisation, model: PlantModel, engine, R: np.ndarray, 
             back = reading_step(u, engine.dt, 0.0, end, sign=-np.sign(step[2]))
             if back is not None and back[1] >= ONSET_Z:
                 on, off = sorted((step, back))
-                loc.reading_spells[sensor.name] = (on[0], off[0], on[2] * per_litre, on[3], on[4], off[3], off[4])
+                loc.reading_spells[sensor.name] = Span(on=on[0], off=off[0], z=min(on[1], off[1]),
+                                                       share=on[2] * per_litre, on_lo=on[3], on_hi=on[4],
+                                                       off_lo=off[3], off_hi=off[4])
 
 
 def driven_tank(model: PlantModel, component: str) -> str | None:

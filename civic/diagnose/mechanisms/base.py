@@ -173,6 +173,18 @@ def tanks_of(model: PlantModel, component: str) -> set[str]:
     return out & set(model.tank_names)
 
 
+def spell_times(key: str, span) -> dict:
+    """The fixed times of a variant switched on (at `key`: `onset`, `since`) at a
+    `locate.Span`'s start and off at its end, each with the bracket the data give it."""
+    return {key: span.on, "not_before": span.on_lo, "not_after": span.on_hi,
+            **ended_times(span.off, span.off_lo, span.off_hi)}
+
+
+def ended_times(t: float, lo: float, hi: float) -> dict:
+    """The fixed times of a variant acting from the start until `t`, bracketed by `lo`, `hi`."""
+    return {"until": t, "until_not_before": lo, "until_not_after": hi}
+
+
 RIM_SHARE = 0.02   # a plateau within 2 % below a tank's rim is at the rim
 ONSET_Z = 5.0      # a change point (Localisation.onsets) this many standard errors: worth a fit
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from .base import ONSET_Z, Mechanism, dated
+from .base import ONSET_Z, Mechanism, dated, ended_times, spell_times
 from .coefficient import CAL_SPREAD
 
 
@@ -30,12 +30,11 @@ class Closure(Mechanism):
                                {"onset": t0, "not_before": lo, "not_after": hi}))
             elif z >= ONSET_Z and share < -1.5 * CAL_SPREAD:   # passes more from then on: opened again
                 out.append(cls(comp, {"closure": float(min(-share, 0.9))}, {"closure": (0.0, 0.95)},
-                               {"until": t0, "until_not_before": lo, "until_not_after": hi}))
+                               ended_times(t0, lo, hi)))
         for comp, sp in getattr(loc, "spans", {}).items():
             if sp.z >= ONSET_Z and sp.share > 1.5 * CAL_SPREAD:
                 out.append(cls(comp, {"closure": float(min(sp.share, 0.9))}, {"closure": (0.0, 0.95)},
-                               {"onset": sp.on, "not_before": sp.on_lo, "not_after": sp.on_hi, "until": sp.off,
-                                "until_not_before": sp.off_lo, "until_not_after": sp.off_hi}))
+                               spell_times("onset", sp)))
         return out
 
     def negligible(self, p, model):

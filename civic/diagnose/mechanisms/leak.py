@@ -6,7 +6,7 @@ import math
 
 from civic.plant.model import OUTSIDE, Link
 
-from .base import ONSET_Z, Mechanism, dated, lower_tanks
+from .base import ONSET_Z, Mechanism, dated, ended_times, lower_tanks, spell_times
 
 
 NEGLIGIBLE_SHARE = 0.002
@@ -43,13 +43,12 @@ class Leak(Mechanism):
                                    {"to": dest, "since": t0, "not_before": lo, "not_after": hi}))
                 elif z >= ONSET_Z and c < 0:    # stopped losing water then: repaired
                     out.append(cls(tank, {"c": float(min(-c, cmax))}, {"c": (0.0, cmax)},
-                                   {"to": dest, "until": t0, "until_not_before": lo, "until_not_after": hi}))
+                                   {"to": dest, **ended_times(t0, lo, hi)}))
                 # one that leaked for a while (`Localisation.leak_spans`): opened, then repaired
                 sp = getattr(loc, "leak_spans", {}).get(tank)
                 if sp is not None and sp.z >= ONSET_Z and sp.share > 0:
                     out.append(cls(tank, {"c": float(min(sp.share, cmax))}, {"c": (0.0, cmax)},
-                                   {"to": dest, "since": sp.on, "not_before": sp.on_lo, "not_after": sp.on_hi,
-                                    "until": sp.off, "until_not_before": sp.off_lo, "until_not_after": sp.off_hi}))
+                                   {"to": dest, **spell_times("since", sp)}))
         return out
 
     def negligible(self, p, model):

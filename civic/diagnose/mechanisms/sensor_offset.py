@@ -5,7 +5,7 @@ grows from a time on (a sensor drifting: fouling, ageing, a warming transmitter)
 from __future__ import annotations
 
 from ..compare import INVENTORY_BAND, INVENTORY_SPREAD
-from .base import Mechanism, dated, drives_no_flow, sensors_of, tanks_touching
+from .base import Mechanism, dated, drives_no_flow, ended_times, sensors_of, spell_times, tanks_touching
 
 OFFSET_FLOOR = 1e-3  # in the sensor's unit: below this no sensor without noise or resolution reads off
 DRIFT_STARTS = 4     # start times tried for a drift, from the record's start to its balance's change
@@ -61,14 +61,13 @@ class SensorOffset(Mechanism):
                                        {"base": s.offset, "since": t0, "not_before": lo, "not_after": hi}))
                         # ... or off from the start until then (set right at the step)
                         out.append(cls(s.name, {"offset": -step}, dict(bounds),
-                                       {"base": s.offset, "until": t0, "until_not_before": lo, "until_not_after": hi}))
+                                       {"base": s.offset, **ended_times(t0, lo, hi)}))
                     # a reading that stepped and stepped back: off for that spell only
                     if s.name in getattr(loc, "reading_spells", {}):
-                        on, off, step, on_lo, on_hi, off_lo, off_hi = loc.reading_spells[s.name]
-                        step = min(max(step, bounds["offset"][0]), bounds["offset"][1])
+                        sp = loc.reading_spells[s.name]
+                        step = min(max(sp.share, bounds["offset"][0]), bounds["offset"][1])
                         out.append(cls(s.name, {"offset": step}, dict(bounds),
-                                       {"base": s.offset, "since": on, "not_before": on_lo, "not_after": on_hi,
-                                        "until": off, "until_not_before": off_lo, "until_not_after": off_hi}))
+                                       {"base": s.offset, **spell_times("since", sp)}))
                     # its tank's balance changed from a time on: a reading drifting from then or
                     # before (a ramp grows out of the noise late: the change point of a drift of
                     # 0.3 L in 400 s from 200 s fell at 285 s), from DRIFT_STARTS times between

@@ -73,6 +73,17 @@ def test_second_fault_is_sought_where_the_first_does_not_act(closed_loop_case, n
     assert abs(d.final_all.mechanisms[1].values()["c"] - 0.010) < 0.002
 
 
+def test_second_fault_acting_throughout_is_sought_where_the_first_leaves_a_balance_flagged(
+        closed_loop_case, nominal):
+    """An L3 step and a pipe23 flow exponent of 0.6: with the step in, T2's balance stands
+    flagged, but below twice the bar. The flow law acts over the whole record, so it is tried
+    there beside the step, and named."""
+    d = diagnose(nominal, closed_loop_case("shift_L3+flowlaw_pipe23", seed=3))
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == \
+        [("sensor_offset", "L3"), ("flow_law", "pipe23")]
+    assert abs(d.final_all.mechanisms[1].values()["exponent"] - 0.6) < 0.05
+
+
 def test_leak_that_opens_mid_run_is_dated(closed_loop_case, nominal):
     """A T3 leak that opens 300 s into the record: a leak from then on (its onset bracketed, its
     coefficient the leak's, not the record's average), active from there; the report says so."""

@@ -48,7 +48,8 @@ MIN_GAIN = 0.10
 MIN_GAIN_FIRST = 0.05
 MAX_FINDINGS = 3
 UNEXPLAINED_BAR = 2.0   # a balance the findings so far leave flagged at this many times the bar:
-                        # later rounds try every candidate acting on it (at 1x only the standing ones)
+                        # later rounds try every candidate acting on it (at 1x, or flagged by
+                        # the localisation, only the standing ones)
 REDATE_REACH = 30.0     # s: a finding switched on mid-run is dated again this far outside its bracket
 ORDER_AGREEMENT = 0.25  # a later finding: each block order's held-out gain at least this share of the other's
 # a candidate whose held-out BIC is within this of the chosen one's (and significant on its own)
@@ -475,7 +476,8 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
     """Forward selection on held-out data (up to MAX_FINDINGS): each round the candidate with
     the lowest held-out BIC (relative to its reference) joins if `significant`; later rounds
     try what helped on its own in the first and what acts where the findings so far leave a
-    balance flagged (at UNEXPLAINED_BAR; a standing candidate at the bar). A candidate the held-out blocks never see
+    balance flagged (at UNEXPLAINED_BAR; a standing candidate at the bar or where the
+    localisation flagged). A candidate the held-out blocks never see
     act is judged with the blocks swapped, against the current model refitted the same way."""
     model = prob.model
     current, chosen = base, []
@@ -548,12 +550,14 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
         # balance the findings so far leave clearly flagged (a second fault's own candidates may not
         # help on their own while the first one's mismatch dominates: a T1 leak beside a V2 closure
         # fitted +3 alone, and left T1's balance at 7x the bar; with both in, T2's stood at 1.2x,
-        # and a 75 s pipe23 closure re-admitted there patched it); on a tank flagged at all, what
-        # acts over the whole record: a pipe23 flow law beside an L3 step left T2 at 1.2x the bar
+        # and a 75 s pipe23 closure re-admitted there patched it); on a tank flagged at all, now
+        # or by the localisation, what acts over the whole record: with an L3 step in, T2's
+        # balance stood at 1.2x the bar on one seed and 0.9x on another, and a pipe23 flow law
+        # beside the step gained held-out dBIC -93 there
         helped = {t["candidate"] for t in diag.tried if t["dbic"] < 0}
         residuals, columns = prob.residuals(res.model, res.x0_extra), list(prob.engine.columns)
         unexplained = set(still_flagged(residuals, columns, UNEXPLAINED_BAR)) & set(model.tank_names)
-        flagged = set(still_flagged(residuals, columns)) & set(model.tank_names)
+        flagged = (set(still_flagged(residuals, columns)) | set(diag.loc.flagged)) & set(model.tank_names)
         candidates = [c for c in all_candidates if all(c.component != m.component for m in chosen)
                       and (c.label in helped or tanks_of(model, c.component) & unexplained
                            or (c.acting_at(np.zeros(1)) is None and tanks_of(model, c.component) & flagged))]

@@ -73,12 +73,14 @@ def test_second_fault_is_sought_where_the_first_does_not_act(closed_loop_case, n
     assert abs(d.final_all.mechanisms[1].values()["c"] - 0.010) < 0.002
 
 
+@pytest.mark.parametrize("case,seed", [("shift_L3+flowlaw_pipe23", 3), ("shift_L3+flowlaw_pipe23_seed5", 5)])
 def test_second_fault_acting_throughout_is_sought_where_the_first_leaves_a_balance_flagged(
-        closed_loop_case, nominal):
+        closed_loop_case, nominal, case, seed):
     """An L3 step and a pipe23 flow exponent of 0.6: with the step in, T2's balance stands
-    flagged, but below twice the bar. The flow law acts over the whole record, so it is tried
-    there beside the step, and named."""
-    d = diagnose(nominal, closed_loop_case("shift_L3+flowlaw_pipe23", seed=3))
+    below twice the bar (seed 3: 1.2x), or below the bar (seed 5: 0.9x; the localisation
+    flagged it). The flow law acts over the whole record, so it is tried there beside the step,
+    and named."""
+    d = diagnose(nominal, closed_loop_case(case, seed=seed))
     assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == \
         [("sensor_offset", "L3"), ("flow_law", "pipe23")]
     assert abs(d.final_all.mechanisms[1].values()["exponent"] - 0.6) < 0.05

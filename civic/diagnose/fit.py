@@ -560,7 +560,7 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
         flagged = (set(still_flagged(residuals, columns)) | set(diag.loc.flagged)) & set(model.tank_names)
         candidates = [c for c in all_candidates if all(c.component != m.component for m in chosen)
                       and (c.label in helped or tanks_of(model, c.component) & unexplained
-                           or (c.acting_at(np.zeros(1)) is None and tanks_of(model, c.component) & flagged))]
+                           or (c.standing and tanks_of(model, c.component) & flagged))]
         planned += len(candidates)
     return chosen, current
 

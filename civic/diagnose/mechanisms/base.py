@@ -107,12 +107,17 @@ class Mechanism:
         None: everywhere (a flow law, a sensor map, a coefficient)."""
         return self.acting_at(np.arange(len(volumes)) * model.dt)
 
+    @property
+    def standing(self) -> bool:
+        """Acting over the whole record: switched neither on nor off mid-run."""
+        return self.switched_on is None and self.switched_off is None
+
     def acting_at(self, t: np.ndarray):
-        """Which of the times `t` (s) fall between its switch-on and switch-off; None when it was
-        switched neither on nor off mid-run."""
-        t0, t1 = self.switched_on, self.switched_off
-        if t0 is None and t1 is None:
+        """Which of the times `t` (s) fall between its switch-on and switch-off; None when it is
+        `standing`."""
+        if self.standing:
             return None
+        t0, t1 = self.switched_on, self.switched_off
         return (t >= (t0 or 0.0)) & (t < (np.inf if t1 is None else t1))
 
     def negligible(self, p: dict, model: PlantModel) -> bool:

@@ -56,12 +56,13 @@ class FlowTerm:
 
 @dataclass
 class MonitorEntries(Monitor):
-    """A monitor with its estimator and class table (rows of CLASS_COLUMNS)."""
+    """A monitor with its estimator, class table (rows of CLASS_COLUMNS) and compensation
+    table (rows of OFFSET_COLUMNS)."""
 
     estimator: str = "lsq"
     default_class: int = CLASS_CODES["error"]
-    classes: np.ndarray = field(default_factory=lambda: np.zeros((0, 5), dtype=np.int64))
-    offsets: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int64))
+    classes: np.ndarray = field(default_factory=lambda: np.zeros((0, len(CLASS_COLUMNS)), dtype=np.int64))
+    offsets: np.ndarray = field(default_factory=lambda: np.zeros((0, len(OFFSET_COLUMNS)), dtype=np.int64))
     terms: list[FlowTerm] = field(default_factory=list)
 
     @property

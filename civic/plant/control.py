@@ -384,7 +384,6 @@ class Stepper:
         self.hist_len = max([a.m for a in self.cm._acts] + [0]) + 2
         self.hist = [list(map(float, u0))] * self.hist_len     # oldest first
         self.acts = [(a.input, a.m) for a in self.cm._acts]
-        self._buf = []
 
     def step(self, u) -> list:
         """Apply command u over [t_k, t_k+1); returns the state at t_k+1."""

@@ -83,7 +83,7 @@ def make_fault(nominal, name):
         m.find("link", "V2").exponent = 0.7
     elif name == "flowlaw_pipe23_subtle":
         # the sweep's seed-5 plant (bench_diagnose.sweep_plant): with seed 5 no balance is flagged
-        draw_calibration(m, nominal, (0.9628, 1.0263, 1.006, 1.0108))
+        draw_calibration(m, nominal, SWEEP_SEED5)
         m.find("link", "pipe23").exponent = 0.55
     elif name == "saturation_L1_training_only":
         # the sweep's seed-13 plant: under seed 13's setpoints T1 passes 9 L once, in a training block

@@ -344,14 +344,15 @@ class SimulationError:
     """Open-loop simulation driven by the recorded inputs: sensor residuals per sample.
 
     horizon_s=None: one free run from the initial state (unmeasured tanks are
-    nuisance parameters, see `x0`). horizon_s=h: restart from the measured
-    state every h seconds (multiple shooting; needs every tank measured).
+    nuisance parameters, see `x0`; measured ones from the mean of the first
+    `average` samples). horizon_s=h: restart from the measured state every h
+    seconds (multiple shooting; needs every tank measured).
     """
 
     kind = "simulation"
 
     def __init__(self, model: PlantModel, rec: Recording, horizon_s: float | None = None,
-                 n_init: int = 1, skip: int = 0):
+                 n_init: int = 1, skip: int = 0, average: int = 1):
         self.rec = rec
         self.n = len(rec.t)
         self.dt = float(model.dt)
@@ -360,6 +361,7 @@ class SimulationError:
         self.columns = [s for s in model.signal_names if s in rec.signals]
         self.Y = np.stack([np.asarray(rec.signals[s], float) for s in self.columns], axis=1)
         self.n_init = n_init
+        self.average = average
         self.skip = skip
         self.horizon = None if horizon_s is None else max(2, int(round(horizon_s / self.dt)))
         rows = np.arange(skip, self.n)
@@ -377,10 +379,10 @@ class SimulationError:
         if k == 0 and self.x0_extra:
             # measured tanks from the data, unmeasured ones as given (fitted nuisance values)
             part = {key: val for key, val in self.x0_extra.items()}
-            sensed_only = measured_state(model, sig, 1)
+            sensed_only = measured_state(model, sig, self.average)
             sensed_only.update(part)
             return sensed_only
-        return initial_state(model, sig, self.n_init if k == 0 else 1)
+        return initial_state(model, sig, self.n_init if k == 0 else 1, average=self.average if k == 0 else 1)
 
     def simulate(self, model: PlantModel) -> dict:
         if self.horizon is None:

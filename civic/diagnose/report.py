@@ -145,6 +145,10 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
                 ev.append("concealed in closed loop: levels track their setpoints, but the actuators "
                           "work against a loss the model does not have (mass balance of "
                           f"{mech.component} with the recorded commands)")
+        if f.get("replay"):
+            ev.append("every mass balance closes within its noise, but the calibrated model replayed open loop "
+                      "departs from the recording (RMS over noise: "
+                      + ", ".join(f"{k} {v:.2f}" for k, v in f["replay"].items()) + "): judged on the replay")
         if isinstance(eng, SimulationError):
             ev += diag.loc.regimes
             if intervals:
@@ -217,6 +221,8 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
                                        for r in diag.ablation["without"]]}
     if diag.integrator:
         fit["integrator"] = diag.integrator
+    if diag.replay:
+        fit["replay_check"] = diag.replay
     loc = diag.loc
     report = {
         "mismatch": bool(diag.mismatch),
@@ -239,7 +245,7 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
             "limits_reached": _limits_reached(diag, rec),
         },
         "candidates": [{"candidate": t["candidate"], "heldout_dbic": round(t["dbic"], 2),
-                        "heldout_sse_reduction": round(t["val_gain"], 4)}
+                        "heldout_sse_reduction": round(t["val_gain"], 4), "error": t.get("error", loc.kind)}
                        for t in sorted(diag.tried, key=lambda x: x["dbic"])],
     }
     report["_sims"] = (sim_before, sim_after)

@@ -97,6 +97,45 @@ def test_lost_messages_are_tolerated(tmp_path):
     assert abs(top["parameters"]["c"] - 0.012) < 0.0036
 
 
+def test_lost_messages_on_a_clean_run_raise_nothing(tmp_path):
+    """The bundled clean case with 1 % of its messages lost one by one and a 10 s stretch lost: the
+    single losses are interpolated (their windows kept: they had hidden 40 % of the balances and
+    taken the noise estimate down with them), the stretch is flagged and ignored, and the replay
+    stage does not replay through it. No finding."""
+    import numpy as np
+
+    from civic.wire import read_pcap, write_pcap
+
+    cap = read_pcap(CASES / "example_none" / "case.pcap")
+    keep = np.random.default_rng(3).random(len(cap.messages)) >= 0.01
+    keep[2000:2100] = False
+    idx = np.flatnonzero(keep)
+    gappy = tmp_path / "gappy.pcap"
+    write_pcap(gappy, cap.messages["t"][idx], [cap.frame(i) for i in idx])
+    out = tmp_path / "gappy.json"
+    assert main(["diagnose", str(gappy), "--json", str(out), "-q"]) == 0
+    rep = json.loads(out.read_text())
+    assert rep["mismatch"] is False and not rep["findings"]
+    assert "skipped" in rep["fit"]["replay_check"]
+
+
+def test_short_runs_of_lost_messages_are_interpolated():
+    """regularise: a run of up to SHORT_GAP lost samples is interpolated and not flagged; a longer
+    one holds the last value and is flagged; fields always hold."""
+    import numpy as np
+
+    from civic.diagnose.data import SHORT_GAP, regularise
+    from civic.plant.simulate import Recording
+
+    k = np.array([0, 1, 3, 4, 5 + SHORT_GAP + 1, 5 + SHORT_GAP + 2])   # one lost at 2, a run after 4
+    y = 10.0 * k
+    rec = regularise(Recording(0.1 * k, {"L1": y}, {"mode": k.copy()}, "r"), 0.1)
+    assert np.allclose(rec.signals["L1"][:5], [0, 10, 20, 30, 40])
+    assert np.allclose(rec.signals["L1"][5:5 + SHORT_GAP + 1], 40.0)
+    assert rec.fields["mode"][2] == 1
+    assert rec.gaps.tolist() == [False] * 5 + [True] * (SHORT_GAP + 1) + [False] * 2
+
+
 @pytest.mark.parametrize("run,closure", [("drain_v075_error_r1", 0.55), ("drain_v075_warning_r1", 0.30),
                                          ("drain_v075_warning_r2", 0.30), ("drain_v075_normal_r1", 0.0),
                                          ("drain_v075_normal_r4", 0.0)])

@@ -25,8 +25,11 @@ class DeadTime(Mechanism):
         return out
 
     def negligible(self, p, model):
+        # within 1.5 samples of the datasheet: the messages' own timing (a command recorded up to a
+        # period before it acts) cannot tell it apart; the bundled clean case fits V1 0.1 s late at
+        # held-out BIC -9.5, and with 1 % of its messages lost at -14.5
         kind = "pump" if any(x.name == self.component for x in model.pumps) else "valve"
-        return abs(p["dead_time"] - model.find(kind, self.component).dead_time) < 0.5 * model.dt
+        return abs(p["dead_time"] - model.find(kind, self.component).dead_time) < 1.5 * model.dt
 
     def describe(self, p):
         return f"{self.component} acts {p['dead_time']:.3g} s after its command"

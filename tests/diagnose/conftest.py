@@ -126,6 +126,10 @@ def make_fault(nominal, name):
         # of the flow, which the calibration's pump gain takes whole at the -5 % edge
         draw_calibration(m, nominal, (1.0273, 0.9817, 1.0126, 0.9975))
         m.find("pump", "P1").head_coeff = 0.02
+    elif name == "offset_L1_small":
+        # the sweep's seed-2 plant, L1 reading 0.1 L high from the start
+        draw_calibration(m, nominal, SWEEP_SEED2)
+        m.find("sensor", "L1").offset = 0.1
     elif name == "P1_low_at_edge":
         # the seed-94 plant with P1's gain 5.3 % below the datasheet: the calibration's -5 % edge
         # takes all but 0.3 % of it

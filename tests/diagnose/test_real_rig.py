@@ -320,3 +320,19 @@ def test_a_link_added_by_a_candidate_does_not_hide_balances(closed_loop_case, no
     second finding on 5 of seeds 1-7); the rows a balance is hidden on follow the nominal links."""
     d = diagnose(nominal, closed_loop_case("saturation_L1_held_at_clip", seed=4))
     assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("sensor_saturation", "L1")]
+
+
+def test_a_swapped_candidate_is_compared_on_its_own_reference(closed_loop_case, nominal, monkeypatch):
+    """An L1 offset of 0.1 L: a T2 leak over 205-260 s, judged with the blocks swapped, led the
+    first round on its own reference (BIC -97.5 against the offset's -89 on the held-out blocks)
+    and a V1 closure over the same spell followed it. Judged swapped too, the offset does as well,
+    and it is the one finding."""
+    from civic.diagnose import fit
+
+    rec = closed_loop_case("offset_L1_small", seed=2)
+    d = diagnose(nominal, rec)
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("sensor_offset", "L1")]
+    assert abs(d.final_all.mechanisms[0].values()["offset"] - 0.1) < 0.01
+    # without the fair comparison the swapped spell wins: the test sees the case it is about
+    monkeypatch.setattr(fit, "_fair_swapped", lambda prob, chosen, results, best, min_gain: best)
+    assert diagnose(nominal, rec).findings[0]["mechanism"].name != "sensor_offset"

@@ -77,21 +77,31 @@ def test_plant_option_and_errors(tmp_path, capsys):
     assert main(["diagnose", str(CASES / "example_none" / "case.pcap"), "--json", "/nonexistent/r.json"]) == 2
 
 
-def test_lost_messages_are_tolerated(tmp_path):
-    """Messages lost on the wire leave holes in the time axis: filled, flagged and ignored."""
+def _diagnose_with_lost(tmp_path, case: str, lost) -> dict:
+    """The report of `civic diagnose` on a bundled case with the messages `lost(n)` marks dropped."""
     import numpy as np
 
     from civic.wire import read_pcap, write_pcap
 
-    cap = read_pcap(CASES / "example_leak_t3" / "case.pcap")
-    keep = np.ones(len(cap.messages), bool)
-    keep[1000:1030] = keep[3000:3003] = keep[5000] = False
-    idx = np.flatnonzero(keep)
+    cap = read_pcap(CASES / case / "case.pcap")
+    idx = np.flatnonzero(~lost(len(cap.messages)))
     gappy = tmp_path / "gappy.pcap"
     write_pcap(gappy, cap.messages["t"][idx], [cap.frame(i) for i in idx])
     out = tmp_path / "gappy.json"
     assert main(["diagnose", str(gappy), "--json", str(out), "-q"]) == 0
-    rep = json.loads(out.read_text())
+    return json.loads(out.read_text())
+
+
+def test_lost_messages_are_tolerated(tmp_path):
+    """Messages lost on the wire leave holes in the time axis: filled, flagged and ignored."""
+    import numpy as np
+
+    def lost(n):
+        m = np.zeros(n, bool)
+        m[1000:1030] = m[3000:3003] = m[5000] = True
+        return m
+
+    rep = _diagnose_with_lost(tmp_path, "example_leak_t3", lost)
     top = rep["findings"][0]
     assert (top["mechanism"], top["component"]) == ("leak", "T3")
     assert abs(top["parameters"]["c"] - 0.012) < 0.0036
@@ -104,17 +114,12 @@ def test_lost_messages_on_a_clean_run_raise_nothing(tmp_path):
     stage does not replay through it. No finding."""
     import numpy as np
 
-    from civic.wire import read_pcap, write_pcap
+    def lost(n):
+        m = np.random.default_rng(3).random(n) < 0.01
+        m[2000:2100] = True
+        return m
 
-    cap = read_pcap(CASES / "example_none" / "case.pcap")
-    keep = np.random.default_rng(3).random(len(cap.messages)) >= 0.01
-    keep[2000:2100] = False
-    idx = np.flatnonzero(keep)
-    gappy = tmp_path / "gappy.pcap"
-    write_pcap(gappy, cap.messages["t"][idx], [cap.frame(i) for i in idx])
-    out = tmp_path / "gappy.json"
-    assert main(["diagnose", str(gappy), "--json", str(out), "-q"]) == 0
-    rep = json.loads(out.read_text())
+    rep = _diagnose_with_lost(tmp_path, "example_none", lost)
     assert rep["mismatch"] is False and not rep["findings"]
     assert "skipped" in rep["fit"]["replay_check"]
 

@@ -404,8 +404,8 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
     if isinstance(engine, EquationError):
         first = prob.fit([])
         R0 = prob.residuals(first.model, first.x0_extra)
-        sigma = np.array([robust_sigma(_informative(R0[engine.train, j]) - np.median(_informative(R0[engine.train, j])))
-                          for j in range(R0.shape[1])])
+        rows = [_informative(R0[engine.train, j]) for j in range(R0.shape[1])]
+        sigma = np.array([robust_sigma(r - np.median(r)) for r in rows])
         # the residual spread cannot be below what sensor noise alone gives
         sigma = np.maximum(sigma, 1e-6)
         if INVENTORY in engine.columns:
@@ -597,8 +597,8 @@ def _replay(model: PlantModel, rec: Recording, diag: Diagnosis, candidates: list
     its recording by REPLAY_BAR noise sigmas (RMS), the candidates acting over the whole record
     are judged on the replay's blocked 2-fold CV in time (each half held out once) and the best
     one joins if it lowers the held-out SSE by REPLAY_MIN_GAIN, and by REPLAY_FOLD_GAIN in each
-    half (`significant` with these gains). Dead times are left
-    to the balances, which see their timing directly (and each value costs a recompile). On a
+    half. Dead times are left to the balances, which see their timing directly (and each value
+    costs a recompile). On a
     finding, `diag` takes the replay's engine, calibration and noise weights, and the return is
     (its Problem, [finding], its fit); otherwise None (`diag.replay` records the check). Not on a
     record with lost stretches: a replay through unknown inputs drifts (a clean run with 10 s lost

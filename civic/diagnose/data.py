@@ -92,7 +92,7 @@ def regularise(rec: Recording, dt: float) -> Recording:
         v = np.asarray(v, float)[keep]
         signals[name] = np.where(short, np.interp(grid, k, v), v[src])
     fields = {name: np.asarray(v)[keep][src] for name, v in (rec.fields or {}).items()}
-    out = Recording(np.arange(n) * dt, signals, fields, rec.path)
+    out = Recording(grid * dt, signals, fields, rec.path)
     out.gaps = gaps
     return out
 

@@ -537,12 +537,8 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
             results.append((cand, res, judged))
             if round_ == 0:
                 r, ref, how = judged
-                diag.tried.append({"candidate": cand.label, "val_bic": r.val_bic,
-                                   "dbic": r.val_bic - ref.val_bic,
-                                   "val_gain": 1 - r.val_sse / max(ref.val_sse, 1e-300),
-                                   "fold_sse": list(r.fold_sse), "base_fold_sse": list(ref.fold_sse),
-                                   "parameters": res.mechanisms[-1].report_parameters(),
-                                   **({"held_out": how} if how else {})})
+                diag.tried.append(_tried(cand.label, r, ref, res.mechanisms[-1],
+                                         **({"held_out": how} if how else {})))
         # physically negligible effects are not findings, however significant statistically
         results = [x for x in results if not x[1].mechanisms[-1].negligible(x[1].mechanisms[-1].values(), model)]
         if not results:
@@ -598,8 +594,8 @@ def _replay(model: PlantModel, rec: Recording, diag: Diagnosis, candidates: list
     are judged on the replay's blocked 2-fold CV in time (each half held out once) and the best
     one joins if it lowers the held-out SSE by REPLAY_MIN_GAIN, and by REPLAY_FOLD_GAIN in each
     half. Dead times are left to the balances, which see their timing directly (and each value
-    costs a recompile). On a
-    finding, `diag` takes the replay's engine, calibration and noise weights, and the return is
+    costs a recompile). On a finding, `diag` takes the replay's engine, calibration and noise
+    weights, and the return is
     (its Problem, [finding], its fit); otherwise None (`diag.replay` records the check). Not on a
     record with lost stretches: a replay through unknown inputs drifts (a clean run with 10 s lost
     replayed 1.27 sigmas off, and a T3 rim took the drift)."""
@@ -633,10 +629,7 @@ def _replay(model: PlantModel, rec: Recording, diag: Diagnosis, candidates: list
             continue
         fitted = res.mechanisms[-1]
         ref = base if len(res.fold_sse) == len(base.fold_sse) else ref_first
-        diag.tried.append({"candidate": cand.label, "val_bic": res.val_bic, "dbic": res.val_bic - ref.val_bic,
-                           "val_gain": 1 - res.val_sse / max(ref.val_sse, 1e-300), "fold_sse": list(res.fold_sse),
-                           "base_fold_sse": list(ref.fold_sse), "parameters": fitted.report_parameters(),
-                           "error": engine.kind})
+        diag.tried.append(_tried(cand.label, res, ref, fitted, error=engine.kind))
         if ref is base and not fitted.negligible(fitted.values(), model):
             results.append((cand, res, (res, base, "")))
     good = [x for x in results if significant(x[1], base, REPLAY_MIN_GAIN)[0]
@@ -670,6 +663,13 @@ def _fair_swapped(prob: Problem, chosen: list, results: list, best: tuple, min_g
     if flipped.val_bic - ref.val_bic <= r.val_bic - ref.val_bic and significant(flipped, ref, min_gain)[0]:
         return other
     return best
+
+
+def _tried(label: str, res: FitResult, ref: FitResult, mech: Mechanism, **extra) -> dict:
+    """A `Diagnosis.tried` record: `res` (with `mech`) judged on held-out data against `ref`."""
+    return {"candidate": label, "val_bic": res.val_bic, "dbic": res.val_bic - ref.val_bic,
+            "val_gain": 1 - res.val_sse / max(ref.val_sse, 1e-300), "fold_sse": list(res.fold_sse),
+            "base_fold_sse": list(ref.fold_sse), "parameters": mech.report_parameters(), **extra}
 
 
 def _fold_gains(res: FitResult, ref: FitResult) -> list[float]:
@@ -721,7 +721,7 @@ def _holds_on_both_orders(prob: Problem, chosen: list, current: FitResult, cand:
     ref = fits.get("reference") or prob.evaluate(chosen, start_cal=current.cal, folds=both)
     res = fits.get(cand.label) or prob.evaluate(chosen + [cand], start_cal=current.cal, starts=_starts(cand),
                                                 folds=both)
-    gains = [1 - a / max(b, 1e-300) for a, b in zip(res.fold_sse, ref.fold_sse)]
+    gains = _fold_gains(res, ref)
     return significant(res, ref, min_gain)[0] and min(gains) >= ORDER_AGREEMENT * max(gains)
 
 
@@ -967,11 +967,7 @@ def _backward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base:
             without.append(prob.evaluate(mechs[:i] + mechs[i + 1:], **start))
         if first_pass:
             for m, w in zip(mechs, without):
-                diag.tried.append({"candidate": m.label, "val_bic": current.val_bic,
-                                   "dbic": current.val_bic - w.val_bic,
-                                   "val_gain": 1 - current.val_sse / max(w.val_sse, 1e-300),
-                                   "fold_sse": list(current.fold_sse), "base_fold_sse": list(w.fold_sse),
-                                   "parameters": m.report_parameters()})
+                diag.tried.append(_tried(m.label, current, w, m))
             first_pass = False
         score = [_removal_score(w, current, judges[j]) for j, w in enumerate(without)]
         eligible = [j for j, m in enumerate(mechs) if judges[j] != [] and _removable(m, score[j])]

@@ -1,6 +1,7 @@
 """Shared fixtures: the bundled recordings and entries trained on them."""
 from __future__ import annotations
 
+import civic  # noqa: F401  (first: it pins the CPU code paths before numpy loads)
 import pytest
 
 from data import TRAINING

@@ -43,6 +43,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+import civic  # noqa: E402,F401  (before numpy: it pins the CPU code paths, civic/__init__.py)
+
 TARGETS = {600.0: 10.0, 3600.0: 60.0}
 
 

@@ -1,8 +1,17 @@
 """Shared fixtures: the bundled recordings and entries trained on them."""
 from __future__ import annotations
 
+import signal
+
 import civic  # noqa: F401  (first: it pins the CPU code paths before numpy loads)
 import pytest
+
+# The live tests stop the commands they start with SIGINT, as a user's Ctrl-C. A run started in
+# the background of a non-interactive shell ignores SIGINT, every child inherits that, and the
+# commands never stop (`civic monitor` timed out after SIGINT). A handled signal is reset to
+# the default in a child, so handling it here gives every command its Ctrl-C back.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 from data import TRAINING
 

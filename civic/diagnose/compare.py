@@ -80,6 +80,16 @@ def _zoh_average(u: np.ndarray, delay: float, dt: float) -> np.ndarray:
     return (c(b) - c(a)) / dt
 
 
+def _ends(starts: list, ends: list, n1: int) -> np.ndarray:
+    """(2 n1, k) columns: each start series over each end series, column-major (the generated
+    flow code reads whole columns)."""
+    out = np.empty((2 * n1, len(starts)), order="F")
+    for j, (a, b) in enumerate(zip(starts, ends)):
+        out[:n1, j] = a
+        out[n1:, j] = b
+    return out
+
+
 def closed_gaps(mask: np.ndarray, width: int) -> np.ndarray:
     """`mask` with its gaps shorter than `width` samples filled; a gap at either end is kept.
 
@@ -193,15 +203,19 @@ class EquationError:
         """(n, ntanks) volumes from the sensors (inverted through gain/offset) and a censored mask."""
         n, nt = self.n, len(model.tanks)
         V = np.empty((n, nt))
-        cens = np.zeros((n, nt), bool)
-        for i, tk in enumerate(model.tanks):
-            s = model.find("sensor", self.sensor_of[tk.name])
+        sensors = [model.find("sensor", self.sensor_of[tk.name]) for tk in model.tanks]
+        for i, (tk, s) in enumerate(zip(model.tanks, sensors)):
             q = s.invert(self._unshifted(s, smoothed))
             V[:, i] = q * tk.area if s.quantity == "level" else q
-            if s.max is not None:
-                tol = max(s.resolution, 1e-9) * 1.5
-                cens[:, i] = self.raw[s.name] >= s.max - tol
-        return V, cens
+        key = ("cens",) + tuple((s.name, s.max, s.resolution) for s in sensors)
+        if key not in self._cache:
+            cens = np.zeros((n, nt), bool)
+            for i, s in enumerate(sensors):
+                if s.max is not None:
+                    cens[:, i] = self.raw[s.name] >= s.max - max(s.resolution, 1e-9) * 1.5
+            cens.flags.writeable = False     # cached: shared by every evaluation of these sensors
+            self._cache[key] = cens
+        return V, self._cache[key]
 
     def _unshifted(self, s, smoothed: bool) -> np.ndarray:
         """The readings of sensor `s` (smoothed or raw) less the step or drift it took from a
@@ -261,11 +275,17 @@ class EquationError:
     def _interval_ends(self, model: PlantModel, V: np.ndarray):
         """Volumes, openings and held pump commands at both ends of every sample interval
         (start rows, then end rows)."""
+        key = ("ends",) + tuple((v.input, round(v.tau, 9), round(v.dead_time, 9)) for v in model.valves) \
+            + tuple((p.input, round(p.dead_time, 9)) for p in model.pumps)
+        if key not in self._cache:
+            if len(self._cache) > 256:
+                self._cache.clear()
+            A = [self._opening(v) for v in model.valves]
+            C = [self._pump_avg(p.input, p.dead_time)[:-1] for p in model.pumps]
+            self._cache[key] = (_ends([a[:-1] for a in A], [a[1:] for a in A], self.n - 1), _ends(C, C, self.n - 1))
         n1 = self.n - 1
-        A = np.stack([self._opening(v) for v in model.valves], axis=1) if model.valves else np.zeros((self.n, 0))
-        C = np.stack([self._pump_avg(p.input, p.dead_time)[:-1] for p in model.pumps], axis=1) \
-            if model.pumps else np.zeros((n1, 0))
-        return np.concatenate((V[:-1], V[1:])), np.concatenate((A[:-1], A[1:])), np.concatenate((C, C))
+        return (_ends([V[:-1, i] for i in range(V.shape[1])], [V[1:, i] for i in range(V.shape[1])], n1),
+                *self._cache[key])
 
     def through(self, model: PlantModel, V: np.ndarray) -> dict:
         """Litres through each pump and link per window, from its first end to its second, on
@@ -290,13 +310,28 @@ class EquationError:
 
     def residuals(self, model: PlantModel) -> np.ndarray:
         V, cens = self.volumes(model)
-        if self.gap_rows is not None:
-            cens = cens | self.gap_rows[:, None]
+        hide, blind = self._censored_windows(cens)
         F, out = self.flows(model, V)
         cF = np.concatenate((np.zeros((1, F.shape[1])), np.cumsum(F, axis=0)))
         R = (V[self.k1] - V[self.k0]) - (cF[self.k1] - cF[self.k0])
         if INVENTORY in self.columns:
-            R = np.concatenate((R, self._inventory(model, V, out, cens)[:, None]), axis=1)
+            R = np.concatenate((R, self._inventory(model, V, out, blind)[:, None]), axis=1)
+        if hide is not None:
+            R[:, :len(model.tanks)] = np.where(hide, 0.0, R[:, :len(model.tanks)])
+        self._hide_starved(model, V, R)
+        return R
+
+    def _censored_windows(self, cens: np.ndarray):
+        """For a censored mask from `volumes` (cached, so memoised on it): the per-tank windows
+        whose balance carries no information (None: none) and the windows the inventory
+        cannot use (any sensor censored, or a lost message)."""
+        hit = self._cache.get(("windows", id(cens)))
+        if hit is not None and hit[0] is cens:
+            return hit[1]
+        raw = cens
+        if self.gap_rows is not None:
+            cens = cens | self.gap_rows[:, None]
+        hide = None
         if cens.any():
             # a saturated sensor hides its tank's volume: those windows carry no information
             # about that tank, nor about the flows computed from it (its links' neighbours)
@@ -309,9 +344,9 @@ class EquationError:
                     hide[:, b] |= cw[:, a]
                     if both_ways:
                         hide[:, a] |= cw[:, b]
-                R[:, :len(model.tanks)] = np.where(hide, 0.0, R[:, :len(model.tanks)])
-        self._hide_starved(model, V, R)
-        return R
+        out = (hide, self.touched(cens.any(axis=1)))
+        self._cache[("windows", id(raw))] = (raw, out)
+        return out
 
     def _hide_starved(self, model: PlantModel, V: np.ndarray, R: np.ndarray) -> None:
         """A pump whose source tank is down to its minimum volume (within the reading's noise
@@ -329,15 +364,15 @@ class EquationError:
                 cols = [tidx[p.from_]] + ([tidx[p.to]] if p.to in tidx else [])
                 R[np.ix_(w, cols)] = 0.0
 
-    def _inventory(self, model: PlantModel, V: np.ndarray, out: np.ndarray, cens: np.ndarray) -> np.ndarray:
+    def _inventory(self, model: PlantModel, V: np.ndarray, out: np.ndarray, blind: np.ndarray) -> np.ndarray:
         """Per window: mean measured total volume minus (stated total - water the model let out).
-        Windows with a censored sensor or a lost message carry no information (0)."""
+        The `blind` windows (a censored sensor or a lost message) carry no information (0)."""
         if model.total_volume is None:
             return np.zeros(self.nwin)
         left = np.concatenate(([0.0], np.cumsum(out)))          # water gone outside by each sample
         c = np.concatenate(([0.0], np.cumsum(V.sum(axis=1) - (model.total_volume - left))))
         inv = (c[self.k1] - c[self.k0]) / self.W
-        return np.where(self.touched(cens.any(axis=1)), 0.0, inv)
+        return np.where(blind, 0.0, inv)
 
 
 class SimulationError:

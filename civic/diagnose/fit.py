@@ -24,7 +24,6 @@
 """
 from __future__ import annotations
 
-import copy as _copy
 import math
 from dataclasses import dataclass, field, replace
 
@@ -82,10 +81,15 @@ REPLAY_AVERAGE = 20     # samples averaged for the measured initial state: from 
 
 def fast_copy(model: PlantModel) -> PlantModel:
     """Copy of a model deep enough for parameter edits (its parts are flat dataclasses)."""
+    def shallow(x):
+        y = object.__new__(type(x))     # copy.copy's result, without its reduce protocol's cost
+        y.__dict__.update(x.__dict__)
+        return y
+
     def cp(x):
-        y = _copy.copy(x)
+        y = shallow(x)
         if getattr(y, "overflow", None) is not None:
-            y.overflow = _copy.copy(y.overflow)
+            y.overflow = shallow(y.overflow)
         return y
     return PlantModel(model.name, model.dt, model.substeps, model.total_volume, [cp(x) for x in model.inputs],
                       [cp(x) for x in model.tanks], [cp(x) for x in model.pumps],

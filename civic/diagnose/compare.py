@@ -52,6 +52,7 @@ RIM_TOL = 0.03       # L: a measured volume this close below the rim counts as a
 # enough on a tank nearing its datasheet rim to bend a fitted sensor map (L1 n = 1.1 fitted 1.155)
 RIM_SIGMAS = 4.0
 RIM_GAP = 7          # samples: shorter dips below that band are noise, not the tank leaving its rim
+CACHE_ENTRIES = 256   # parameter-dependent pieces an equation error keeps (`EquationError._cached`)
 
 
 def holdout_mask(n: int, blocks: int = N_BLOCKS) -> np.ndarray:
@@ -175,47 +176,74 @@ class EquationError:
         self.gap_rows = gaps if gaps is not None and gaps.any() else None
 
     # ---- pieces that depend on a few parameters only (cached) -----------------------
-    def _pump_avg(self, inp: str, delay: float) -> np.ndarray:
-        key = ("p", inp, round(delay, 9))
-        if key not in self._cache:
-            if len(self._cache) > 256:
+    def _cached(self, key, make):
+        """The cached value under `key`, made on a miss. The cache is emptied when it outgrows
+        CACHE_ENTRIES: a fit that moves a cached parameter (a dead time, a sensor's clip) makes
+        an entry per evaluation."""
+        hit = self._cache.get(key)
+        if hit is None:
+            if len(self._cache) > CACHE_ENTRIES:
                 self._cache.clear()
-            self._cache[key] = _zoh_average(self.U[:, self.input_index[inp]], delay, self.dt)
-        return self._cache[key]
+            hit = self._cache[key] = make()
+        return hit
+
+    def _pump_avg(self, inp: str, delay: float) -> np.ndarray:
+        return self._cached(("p", inp, round(delay, 9)),
+                            lambda: _zoh_average(self.U[:, self.input_index[inp]], delay, self.dt))
 
     def _opening(self, v) -> np.ndarray:
         """Valve opening at the sample instants (exact first order under a held delayed command)."""
-        key = ("v", v.input, round(v.tau, 9), round(v.dead_time, 9))
-        if key not in self._cache:
+        def make():
             ub = _zoh_average(self.U[:, self.input_index[v.input]], v.dead_time, self.dt)
-            if v.tau > 0:
-                e = math.exp(-self.dt / v.tau)
-                a = np.empty(self.n)
-                a[0] = ub[0]
-                # a[k+1] = e a[k] + (1 - e) ub[k]
-                a[1:], _ = lfilter([1 - e], [1, -e], ub[:-1], zi=[e * ub[0]])
-            else:
-                a = np.concatenate(([ub[0]], ub[:-1]))
-            self._cache[key] = a
-        return self._cache[key]
+            if v.tau <= 0:
+                return np.concatenate(([ub[0]], ub[:-1]))
+            e = math.exp(-self.dt / v.tau)
+            a = np.empty(self.n)
+            a[0] = ub[0]
+            # a[k+1] = e a[k] + (1 - e) ub[k]
+            a[1:], _ = lfilter([1 - e], [1, -e], ub[:-1], zi=[e * ub[0]])
+            return a
+        return self._cached(("v", v.input, round(v.tau, 9), round(v.dead_time, 9)), make)
 
     def volumes(self, model: PlantModel, smoothed: bool = True):
         """(n, ntanks) volumes from the sensors (inverted through gain/offset) and a censored mask."""
-        n, nt = self.n, len(model.tanks)
-        V = np.empty((n, nt))
+        V, (cens, _, _) = self._volumes(model, smoothed)
+        return V, cens
+
+    def _volumes(self, model: PlantModel, smoothed: bool = True):
+        """The volumes and the sensors' censorship (`_censorship`)."""
+        V = np.empty((self.n, len(model.tanks)))
         sensors = [model.find("sensor", self.sensor_of[tk.name]) for tk in model.tanks]
         for i, (tk, s) in enumerate(zip(model.tanks, sensors)):
             q = s.invert(self._unshifted(s, smoothed))
             V[:, i] = q * tk.area if s.quantity == "level" else q
         key = ("cens",) + tuple((s.name, s.max, s.resolution) for s in sensors)
-        if key not in self._cache:
-            cens = np.zeros((n, nt), bool)
-            for i, s in enumerate(sensors):
-                if s.max is not None:
-                    cens[:, i] = self.raw[s.name] >= s.max - max(s.resolution, 1e-9) * 1.5
-            cens.flags.writeable = False     # cached: shared by every evaluation of these sensors
-            self._cache[key] = cens
-        return V, self._cache[key]
+        return V, self._cached(key, lambda: self._censorship(sensors))
+
+    def _censorship(self, sensors: list):
+        """For the tanks' sensors: the censored mask (n, ntanks; a reading at its clip, read-only),
+        the per-tank windows whose balance carries no information (None: none), and the windows
+        the inventory cannot use (any sensor censored, or a lost message)."""
+        raw = np.zeros((self.n, len(sensors)), bool)
+        for i, s in enumerate(sensors):
+            if s.max is not None:
+                raw[:, i] = self.raw[s.name] >= s.max - max(s.resolution, 1e-9) * 1.5
+        raw.flags.writeable = False     # cached: shared by every evaluation of these sensors
+        cens = raw if self.gap_rows is None else raw | self.gap_rows[:, None]
+        hide = None
+        if cens.any():
+            # a saturated sensor hides its tank's volume: those windows carry no information
+            # about that tank, nor about the flows computed from it (its links' neighbours)
+            cw = self.touched(cens)
+            if cw.any():
+                hide = cw.copy()
+                if self.gap_rows is not None:
+                    hide |= self.touched(self.gap_rows)[:, None]
+                for a, b, both_ways in self.coupled:
+                    hide[:, b] |= cw[:, a]
+                    if both_ways:
+                        hide[:, a] |= cw[:, b]
+        return raw, hide, self.touched(cens.any(axis=1))
 
     def _unshifted(self, s, smoothed: bool) -> np.ndarray:
         """The readings of sensor `s` (smoothed or raw) less the step or drift it took from a
@@ -275,17 +303,15 @@ class EquationError:
     def _interval_ends(self, model: PlantModel, V: np.ndarray):
         """Volumes, openings and held pump commands at both ends of every sample interval
         (start rows, then end rows)."""
-        key = ("ends",) + tuple((v.input, round(v.tau, 9), round(v.dead_time, 9)) for v in model.valves) \
-            + tuple((p.input, round(p.dead_time, 9)) for p in model.pumps)
-        if key not in self._cache:
-            if len(self._cache) > 256:
-                self._cache.clear()
+        def make():
             A = [self._opening(v) for v in model.valves]
             C = [self._pump_avg(p.input, p.dead_time)[:-1] for p in model.pumps]
-            self._cache[key] = (_ends([a[:-1] for a in A], [a[1:] for a in A], self.n - 1), _ends(C, C, self.n - 1))
-        n1 = self.n - 1
-        return (_ends([V[:-1, i] for i in range(V.shape[1])], [V[1:, i] for i in range(V.shape[1])], n1),
-                *self._cache[key])
+            return _ends([a[:-1] for a in A], [a[1:] for a in A], self.n - 1), _ends(C, C, self.n - 1)
+        key = ("ends",) + tuple((v.input, round(v.tau, 9), round(v.dead_time, 9)) for v in model.valves) \
+            + tuple((p.input, round(p.dead_time, 9)) for p in model.pumps)
+        AA, CC = self._cached(key, make)
+        cols = range(V.shape[1])
+        return _ends([V[:-1, i] for i in cols], [V[1:, i] for i in cols], self.n - 1), AA, CC
 
     def through(self, model: PlantModel, V: np.ndarray) -> dict:
         """Litres through each pump and link per window, from its first end to its second, on
@@ -309,8 +335,7 @@ class EquationError:
         return (c[self.k1 + 1] - c[self.k0]) > 0
 
     def residuals(self, model: PlantModel) -> np.ndarray:
-        V, cens = self.volumes(model)
-        hide, blind = self._censored_windows(cens)
+        V, (_, hide, blind) = self._volumes(model)
         F, out = self.flows(model, V)
         cF = np.concatenate((np.zeros((1, F.shape[1])), np.cumsum(F, axis=0)))
         R = (V[self.k1] - V[self.k0]) - (cF[self.k1] - cF[self.k0])
@@ -320,33 +345,6 @@ class EquationError:
             R[:, :len(model.tanks)] = np.where(hide, 0.0, R[:, :len(model.tanks)])
         self._hide_starved(model, V, R)
         return R
-
-    def _censored_windows(self, cens: np.ndarray):
-        """For a censored mask from `volumes` (cached, so memoised on it): the per-tank windows
-        whose balance carries no information (None: none) and the windows the inventory
-        cannot use (any sensor censored, or a lost message)."""
-        hit = self._cache.get(("windows", id(cens)))
-        if hit is not None and hit[0] is cens:
-            return hit[1]
-        raw = cens
-        if self.gap_rows is not None:
-            cens = cens | self.gap_rows[:, None]
-        hide = None
-        if cens.any():
-            # a saturated sensor hides its tank's volume: those windows carry no information
-            # about that tank, nor about the flows computed from it (its links' neighbours)
-            cw = self.touched(cens)
-            if cw.any():
-                hide = cw.copy()
-                if self.gap_rows is not None:
-                    hide |= self.touched(self.gap_rows)[:, None]
-                for a, b, both_ways in self.coupled:
-                    hide[:, b] |= cw[:, a]
-                    if both_ways:
-                        hide[:, a] |= cw[:, b]
-        out = (hide, self.touched(cens.any(axis=1)))
-        self._cache[("windows", id(raw))] = (raw, out)
-        return out
 
     def _hide_starved(self, model: PlantModel, V: np.ndarray, R: np.ndarray) -> None:
         """A pump whose source tank is down to its minimum volume (within the reading's noise

@@ -223,6 +223,8 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         fit["integrator"] = diag.integrator
     if diag.replay:
         fit["replay_check"] = diag.replay
+    if diag.negligible:
+        fit["negligible"] = diag.negligible
     loc = diag.loc
     report = {
         "mismatch": bool(diag.mismatch),

@@ -221,9 +221,9 @@ class EquationError:
         return V, self._cached(key, lambda: self._censorship(sensors))
 
     def _censorship(self, sensors: list):
-        """For the tanks' sensors: the censored mask (n, ntanks; a reading at its clip, read-only),
-        the per-tank windows whose balance carries no information (None: none), and the windows
-        the inventory cannot use (any sensor censored, or a lost message)."""
+        """For the tanks' sensors (all read-only): the censored mask (n, ntanks; a reading at its
+        clip), the per-tank windows whose balance carries no information (None: none), and the
+        windows the inventory cannot use (any sensor censored, or a lost message)."""
         raw = np.zeros((self.n, len(sensors)), bool)
         for i, s in enumerate(sensors):
             if s.max is not None:
@@ -243,7 +243,11 @@ class EquationError:
                     hide[:, b] |= cw[:, a]
                     if both_ways:
                         hide[:, a] |= cw[:, b]
-        return raw, hide, self.touched(cens.any(axis=1))
+        blind = self.touched(cens.any(axis=1))
+        for a in (hide, blind):         # cached too: shared by every evaluation, never written
+            if a is not None:
+                a.flags.writeable = False
+        return raw, hide, blind
 
     def _unshifted(self, s, smoothed: bool) -> np.ndarray:
         """The readings of sensor `s` (smoothed or raw) less the step or drift it took from a

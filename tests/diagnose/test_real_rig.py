@@ -336,3 +336,39 @@ def test_a_swapped_candidate_is_compared_on_its_own_reference(closed_loop_case, 
     # without the fair comparison the swapped spell wins: the test sees the case it is about
     monkeypatch.setattr(fit, "_fair_swapped", lambda prob, chosen, results, best, min_gain: best)
     assert diagnose(nominal, rec).findings[0]["mechanism"].name != "sensor_offset"
+
+
+SEED102 = (0.29375048, 0.24293917, 0.12008101, 0.29413258)   # the sweep's seed-102 calibration draw
+
+
+def test_effect_a_negligible_one_outranks_is_no_finding(nominal):
+    """P1 with a dead zone of 0.47 % of the command (negligible below 1 %), seed-102 plant, MPC:
+    the replay stage's best was the pump's dead zone, negligible, and the T1 rim at the record's
+    peak level came next and was named, an overflow that never happened. Ranked clearly below a
+    negligible effect, the rim is no finding either: the report says what explained the rest."""
+    from civic.diagnose.fit import ALT_DBIC
+    from civic.diagnose.report import build_report
+
+    plant = _bench_draw(nominal, *SEED102)
+    plant.find("pump", "P1").input_offset = 0.00469
+    rec = _closed_loop(nominal, plant, 600.0, "mpc", 102)
+    d = diagnose(nominal, rec)
+    assert not d.findings
+    note = build_report(d, rec)["fit"]["negligible"]
+    assert note["candidate"].startswith("pump_dead_zone(P1")
+    assert note["heldout_dbic"] <= note["outranked_dbic"] - ALT_DBIC
+
+
+def test_leak_a_negligible_one_outranks_is_no_finding(nominal):
+    """A T1 leak out of the plant of c = 0.00047 (negligible below 0.0006), seed-102 plant, MPC:
+    the balances' best was that leak, negligible, and a leak out of the reservoir came next and
+    was named, on the wrong tank. Outranked by the negligible one, it is no finding."""
+    from civic.plant.model import Link
+
+    plant = _bench_draw(nominal, *SEED102)
+    plant.links.append(Link("leak", from_="T1", to="outside", coeff=0.00047))
+    rec = _closed_loop(nominal, plant, 600.0, "mpc", 102)
+    d = diagnose(nominal, rec)
+    assert not d.findings
+    assert d.negligible["candidate"].startswith("leak(T1")
+    assert "physically negligible" in d.verdict or not d.mismatch

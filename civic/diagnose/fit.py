@@ -663,9 +663,7 @@ def _outranked(diag: Diagnosis, best: tuple, small: list) -> bool:
     held-out data better than `best`, the best of the others, by ALT_DBIC: the mismatch is then
     negligible, and `best` would only be the largest effect that fits it somewhat. A pump dead
     zone of 0.5 % of the command (negligible below 1 %) replayed best, held-out BIC -6864, and a
-    T1 rim at the record's peak level (-2667) was named; a T1 leak out of the plant of c = 0.00047
-    (-173, negligible below 0.0006) ranked above a leak out of the reservoir of c = 0.00066
-    (-152), which was named."""
+    T1 rim at the record's peak level (-2667) was named."""
     def dbic(x):
         return x[2][0].val_bic - x[2][1].val_bic
     if not small:

@@ -547,11 +547,12 @@ def _forward(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], base: 
                                          **({"held_out": how} if how else {})))
         # physically negligible effects are not findings, however significant statistically; nor is
         # a larger effect the held-out data rank clearly below a negligible one (`_outranked`)
-        small = [x for x in results if x[1].mechanisms[-1].negligible(x[1].mechanisms[-1].values(), model)]
-        results = [x for x in results if not any(x is y for y in small)]
+        tiny = [x[1].mechanisms[-1].negligible(x[1].mechanisms[-1].values(), model) for x in results]
+        small = [x for x, t in zip(results, tiny) if t]
+        results = [x for x, t in zip(results, tiny) if not t]
         if not results:
             break
-        best = min(results, key=lambda x: x[2][0].val_bic - x[2][1].val_bic)
+        best = min(results, key=_heldout_dbic)
         min_gain = MIN_GAIN if chosen else MIN_GAIN_FIRST
         judged_best, ref_best, _ = best[2]
         if not significant(judged_best, ref_best, min_gain)[0] or _outranked(diag, best, small):
@@ -664,17 +665,21 @@ def _outranked(diag: Diagnosis, best: tuple, small: list) -> bool:
     negligible, and `best` would only be the largest effect that fits it somewhat. A pump dead
     zone of 0.5 % of the command (negligible below 1 %) replayed best, held-out BIC -6864, and a
     T1 rim at the record's peak level (-2667) was named."""
-    def dbic(x):
-        return x[2][0].val_bic - x[2][1].val_bic
     if not small:
         return False
-    top = min(small, key=dbic)
-    if dbic(top) > dbic(best) - ALT_DBIC:
+    top = min(small, key=_heldout_dbic)
+    if _heldout_dbic(top) > _heldout_dbic(best) - ALT_DBIC:
         return False
-    diag.negligible = {"candidate": top[0].label, "heldout_dbic": round(float(dbic(top)), 1),
+    diag.negligible = {"candidate": top[0].label, "heldout_dbic": round(float(_heldout_dbic(top)), 1),
                        "parameters": top[1].mechanisms[-1].report_parameters(),
-                       "outranked": best[0].label, "outranked_dbic": round(float(dbic(best)), 1)}
+                       "outranked": best[0].label, "outranked_dbic": round(float(_heldout_dbic(best)), 1)}
     return True
+
+
+def _heldout_dbic(x: tuple) -> float:
+    """A round's result (candidate, fit, (judged, reference, how)): the judged fit's held-out BIC
+    less its reference's, the figure candidates are ranked by."""
+    return x[2][0].val_bic - x[2][1].val_bic
 
 
 def _fair_swapped(prob: Problem, chosen: list, results: list, best: tuple, min_gain: float) -> tuple:
@@ -687,7 +692,7 @@ def _fair_swapped(prob: Problem, chosen: list, results: list, best: tuple, min_g
     plain = [x for x in results if not x[2][2] and significant(x[2][0], x[2][1], min_gain)[0]]
     if not how or not plain:
         return best
-    other = min(plain, key=lambda x: x[2][0].val_bic - x[2][1].val_bic)
+    other = min(plain, key=_heldout_dbic)
     flipped = prob.evaluate(chosen + [other[0]], start_cal=ref.cal, starts=_starts(other[0]),
                             folds=prob.both_orders()[1:])
     if flipped.val_bic - ref.val_bic <= r.val_bic - ref.val_bic and significant(flipped, ref, min_gain)[0]:

@@ -1,4 +1,5 @@
-"""Finite overflow spill (a weir needing head above its crest), on a simulated 40 s fill test."""
+"""Simulated 40 s fill tests: the finite overflow spill (a weir needing head above its crest),
+and a second effect beside a closure."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,7 +9,7 @@ import pytest
 
 from civic.diagnose.fit import diagnose
 from civic.diagnose.mechanisms import Spill
-from civic.plant.model import PlantModel
+from civic.plant.model import Link, PlantModel
 from civic.plant.procedures import make_procedure, run_procedure
 from civic.plant.simulate import Recording, simulate
 
@@ -60,3 +61,17 @@ def test_instant_overflow_is_not_called_a_spill():
     rec = _fill_record(nominal, seed=8)
     d = diagnose(nominal, rec)
     assert not any(isinstance(f["fit"].mechanisms[-1], Spill) for f in d.findings)
+
+
+def test_a_second_effect_on_a_short_fill_test_holds_on_both_block_orders():
+    """A further finding on a short test must show in both block orders (`_holds_on_both_orders`):
+    a T1 leak beside a pump a fifth weak acts over the whole fill, and does."""
+    nominal = PlantModel.from_toml(PLANT)
+    real = nominal.copy()
+    real.set("pump.P1.gain", 0.8 * real.get("pump.P1.gain"))
+    real.links.append(Link("leak", from_="T1", to="outside", coeff=0.01))
+    d = diagnose(nominal, _fill_record(real, seed=1))
+    found = [(f["mechanism"].name, f["mechanism"].component) for f in d.findings]
+    assert found == [("coefficient", "P1"), ("leak", "T1")], d.verdict
+    leak = d.findings[1]["fit"].mechanisms[-1].values()
+    assert leak["to"] == "outside" and leak["c"] == pytest.approx(0.01, rel=0.3)

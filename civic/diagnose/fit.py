@@ -848,8 +848,8 @@ def _redate(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], start: FitRe
     it is adopted, and the bracket grows to hold every time within ONSET_LR of it (the change
     point's stays: in the fitted model the profile is flatter, a T1 leak's 295-305 s became
     295-340 s), unless the change point's own date is within ONSET_LR of it too: the date stands
-    then, the bracket grown the same way. A reading's step is dated to the sample (`Localisation.reading_steps`) and moves
-    only where a window start beats that date by ONSET_LR. A date guessed on a grid (a drift's
+    then, the bracket grown the same way. A reading's step is dated to the sample
+    (`Localisation.reading_steps`) and moves only where a window start beats that date by ONSET_LR. A date guessed on a grid (a drift's
     start) takes the profile's best and its ONSET_LR bracket. The finding's own records follow."""
     out = list(mechs)
     for i, m in enumerate(mechs):
@@ -893,7 +893,7 @@ def _redate_one(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], i: int, 
                         # balance rows around a reading's step may be hidden: a flat profile)
         # nor does the change point's: a profile as flat there as at its best keeps the date and
         # takes the flat stretch into the bracket. VM1 closed at 180 s under PI, the drain shut
-        # from 100 to 160 s: the change point said 180 s (105-195), the profile 100 s by 0.08
+        # from 120 to 160 s: the change point said 180 s (105-195), the profile 100 s by 0.08
         dated = {lo_key: min(lo, float(near[0]) - width), hi_key: max(hi, float(near[-1]) + width)}
     else:
         dated = {key: best, lo_key: min(lo, float(near[0]) - width), hi_key: max(hi, float(near[-1]) + width)}

@@ -157,7 +157,6 @@ def test_short_drain_tests(tmp_path, run, closure):
     assert abs(rep["findings"][0]["parameters"]["factor"] - (1 - closure)) < 0.05
 
 
-
 @pytest.mark.parametrize("run", ["fill_warning_r3", "fill_warning_r5"])
 def test_short_fill_tests_name_the_closure_alone(tmp_path, run):
     """40 s fill tests with VM2 closed a fifth (traces/training): `coefficient P1`, alone. The
@@ -168,6 +167,7 @@ def test_short_fill_tests_name_the_closure_alone(tmp_path, run):
     rep = json.loads(out.read_text())
     assert [(f["mechanism"], f["component"]) for f in rep["findings"]] == [("coefficient", "P1")]
     assert abs(rep["findings"][0]["parameters"]["factor"] - 0.8) < 0.05
+
 
 def _continuous_cases():
     import csv

@@ -688,14 +688,14 @@ def _fair_swapped(prob: Problem, chosen: list, results: list, best: tuple, min_g
     the blocks swapped too, against the same reference, and leads if it does as well there. An L1
     offset of 0.1 (held-out BIC -89) lost to a T2 leak from 205 to 260 s judged swapped (-97.5),
     and a V1 closure over the same spell followed it."""
-    cand, _, (r, ref, how) = best
+    ref, how = best[2][1], best[2][2]
     plain = [x for x in results if not x[2][2] and significant(x[2][0], x[2][1], min_gain)[0]]
     if not how or not plain:
         return best
     other = min(plain, key=_heldout_dbic)
     flipped = prob.evaluate(chosen + [other[0]], start_cal=ref.cal, starts=_starts(other[0]),
                             folds=prob.both_orders()[1:])
-    if flipped.val_bic - ref.val_bic <= r.val_bic - ref.val_bic and significant(flipped, ref, min_gain)[0]:
+    if flipped.val_bic - ref.val_bic <= _heldout_dbic(best) and significant(flipped, ref, min_gain)[0]:
         return other
     return best
 
@@ -724,11 +724,10 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
     both. On 5 min records a V2 valve characteristic led a V2 flow exponent of 0.7 by 1.9 on one order
     and lost by 283 on both. Also returns, when that decision was taken, each one's pooled held-out BIC
     change against the model without it (best first)."""
-    cand, _, (r0, ref0, how) = best
-    top = r0.val_bic - ref0.val_bic
-    pool = [(c, res, (r, ref, h)) for c, res, (r, ref, h) in results
-            if not h and significant(r, ref, min_gain)[0]
-            and ((c.name, c.component) == (cand.name, cand.component) or r.val_bic - ref.val_bic - top < ALT_DBIC)]
+    cand, how = best[0], best[2][2]
+    top = _heldout_dbic(best)
+    pool = [x for x in results if not x[2][2] and significant(x[2][0], x[2][1], min_gain)[0]
+            and ((x[0].name, x[0].component) == (cand.name, cand.component) or _heldout_dbic(x) - top < ALT_DBIC)]
     if len(pool) < 2 or how or prob.engine.short or not isinstance(prob.engine, EquationError):
         return best, [], {}
     both = prob.both_orders()
@@ -849,8 +848,9 @@ def _redate(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], start: FitRe
     point's stays: in the fitted model the profile is flatter, a T1 leak's 295-305 s became
     295-340 s), unless the change point's own date is within ONSET_LR of it too: the date stands
     then, the bracket grown the same way. A reading's step is dated to the sample
-    (`Localisation.reading_steps`) and moves only where a window start beats that date by ONSET_LR. A date guessed on a grid (a drift's
-    start) takes the profile's best and its ONSET_LR bracket. The finding's own records follow."""
+    (`Localisation.reading_steps`) and moves only where a window start beats that date by
+    ONSET_LR. A date guessed on a grid (a drift's start) takes the profile's best and its
+    ONSET_LR bracket. The finding's own records follow."""
     out = list(mechs)
     for i, m in enumerate(mechs):
         for key, lo_key, hi_key in ((m.switch_key, "not_before", "not_after"),
@@ -882,6 +882,7 @@ def _redate_one(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], i: int, 
     sse = np.array([f.train_sse for f in fits])
     best = float(grid[int(np.argmin(sse))])
     near = grid[sse <= sse.min() + ONSET_LR]
+    grown = {lo_key: min(lo, float(near[0]) - width), hi_key: max(hi, float(near[-1]) + width)}
     if key != "until" and m.fixed.get("guessed"):
         # a date guessed on a grid (a drift's start): the profile's best, its own bracket
         dated = {key: best, lo_key: max(float(near[0]) - width, 0.0), hi_key: float(near[-1]) + width}
@@ -894,9 +895,9 @@ def _redate_one(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], i: int, 
         # nor does the change point's: a profile as flat there as at its best keeps the date and
         # takes the flat stretch into the bracket. VM1 closed at 180 s under PI, the drain shut
         # from 120 to 160 s: the change point said 180 s (105-195), the profile 100 s by 0.08
-        dated = {lo_key: min(lo, float(near[0]) - width), hi_key: max(hi, float(near[-1]) + width)}
+        dated = grown
     else:
-        dated = {key: best, lo_key: min(lo, float(near[0]) - width), hi_key: max(hi, float(near[-1]) + width)}
+        dated = {key: best, **grown}
     # the forward selection's i-th finding is this mechanism (its label, its intervals)
     for x in (diag.findings[i]["mechanism"], diag.findings[i]["fit"].mechanisms[-1]):
         x.fixed.update(dated)

@@ -518,7 +518,9 @@ def transfer_structures(names=None, n_init: int = 50) -> dict:
     fitted on the whole record (estimation RMSE). The validation record is not used."""
     import numpy as np
 
+    from civic.diagnose import backward as B
     from civic.diagnose import data
+    from civic.diagnose import problem as P
     from civic.diagnose import fit as F
     from civic.diagnose.locate import localise
     from civic.diagnose.noise import noise_sigma
@@ -539,20 +541,20 @@ def transfer_structures(names=None, n_init: int = 50) -> dict:
     recs = {"first": part(slice(0, n // 2), "first"), "second": part(slice(n // 2, n), "second"), "whole": rec}
 
     def joint_fit(r, select):
-        # as diagnose() up to the candidates, then _backward's joint multi-start fit, refitted on all rows
-        engine = F.make_engine(model, r, n_init=n_init)
-        prob = F.Problem(model, r, engine, F.Calibration.of(model, bounds=F.FREE_RUN_CAL), np.ones(len(engine.columns)))
+        # as diagnose() up to the candidates, then backward_eliminate's joint multi-start fit, refitted on all rows
+        engine = P.make_engine(model, r, n_init=n_init)
+        prob = P.Problem(model, r, engine, P.Calibration.of(model, bounds=F.FREE_RUN_CAL), np.ones(len(engine.columns)))
         prob.sigma = np.array([max(noise_sigma(engine.Y[:, j]), 1e-3 * (np.ptp(engine.Y[:, j]) or 1.0))
                                for j in range(engine.Y.shape[1])])
         every = np.ones_like(engine.train)
         base = prob.fit([], rows=every)
         loc = localise(model, r, engine, prob.residuals(base.model, base.x0_extra) * prob.sigma, prob.sigma)
-        cands = F._general([c for fam in CATALOGUE if fam is not Coefficient for c in fam.candidates(model, loc)])
-        mechs = sorted(select(cands), key=F._free_rim_last)
-        singles = [prob.fit([m], rows=every, start_cal=base.cal, start_x0=base.x0_extra, starts=F._starts(m))
+        cands = B.general_candidates([c for fam in CATALOGUE if fam is not Coefficient for c in fam.candidates(model, loc)])
+        mechs = sorted(select(cands), key=B.free_rim_last)
+        singles = [prob.fit([m], rows=every, start_cal=base.cal, start_x0=base.x0_extra, starts=P.extra_starts(m))
                    for m in mechs]
         fits = [prob.fit(mechs, rows=every, start_cal=base.cal, start_x0=base.x0_extra,
-                         starts=F._starts(mechs[-1]) if mechs else None)]
+                         starts=P.extra_starts(mechs[-1]) if mechs else None)]
         if singles:
             k = int(np.argmin([s.train_sse for s in singles]))
             warm = [singles[k].mechanisms[0] if j == k else m for j, m in enumerate(mechs)]

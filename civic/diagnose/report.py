@@ -262,7 +262,7 @@ def _heldout_error(res) -> dict:
 
 
 def _alternatives_report(diag: Diagnosis, f: dict) -> list[dict]:
-    """Candidates the held-out data does not separate from the chosen finding (fit._alternatives),
+    """Candidates the held-out data does not separate from the chosen finding (forward.indistinguishable),
     with their held-out errors and the experiment that would tell them apart."""
     from .experiments import separating_experiment
 

@@ -57,7 +57,7 @@ def test_spill_at_the_clip_follows_a_fitted_sensor_map():
     """A measured tank whose sensor sits at its clip spills where that sensor clips, also when
     a sensor map fitted with it moves that level (the rim is read after the map's edit,
     whatever the order of the candidates)."""
-    from civic.diagnose.fit import Calibration, Problem
+    from civic.diagnose.problem import Calibration, Problem
     from civic.diagnose.mechanisms.overflow import AtClip
 
     m = PlantModel.from_toml(MODEL)
@@ -82,7 +82,8 @@ def test_spill_below_the_rim_of_an_unmeasured_tank():
     """Free run: an unmeasured tank gets a finite spill to outside above a crest just below the rim
     of its split spill (read when it edits, after that spill), a candidate of its own next to the
     split spill in the joint fit."""
-    from civic.diagnose.fit import Calibration, Problem, _free_rim_last, _general
+    from civic.diagnose.backward import free_rim_last, general_candidates
+    from civic.diagnose.problem import Calibration, Problem
     from civic.diagnose.locate import Localisation
     from civic.diagnose.mechanisms import Overflow
     from civic.diagnose.mechanisms.overflow import SpillOut
@@ -110,7 +111,7 @@ def test_spill_below_the_rim_of_an_unmeasured_tank():
     assert abs(c.onset_volume(alone) - 10.0) < 1e-9
     # measured plants (equation error) get none; in the joint fit it does not displace the split
     assert SpillOut.candidates(m, Localisation("equation", ["T1"], tanks=["T1"])) == []
-    general = sorted(_general(Overflow.candidates(m, loc) + [c]), key=_free_rim_last)
+    general = sorted(general_candidates(Overflow.candidates(m, loc) + [c]), key=free_rim_last)
     assert c in general and "fraction" in general[-1].params
     assert c.negligible({"c": 1e-5, "crest": 0.9}, m) and not c.negligible({"c": 0.02, "crest": 0.9}, m)
 
@@ -118,7 +119,7 @@ def test_spill_below_the_rim_of_an_unmeasured_tank():
 def test_backward_elimination_keeps_a_parameter_free_finding_on_a_tie():
     """A finding with free parameters goes when its removal raises the held-out RMSE by less than
     1 %; one without (a spill where the sensor clips) only when its removal lowers it by 5 %."""
-    from civic.diagnose.fit import FIXED_ABLATION, MIN_ABLATION, _removable
+    from civic.diagnose.backward import FIXED_ABLATION, MIN_ABLATION, _removable
     from civic.diagnose.mechanisms.overflow import AtClip
 
     m = PlantModel.from_toml(MODEL)

@@ -108,7 +108,7 @@ def test_unflagged_record_suspects_every_tank(closed_loop_case, nominal):
 
 
 def test_pinned_and_driven_tank(nominal):
-    from civic.diagnose.fit import Calibration
+    from civic.diagnose.problem import Calibration
     from civic.diagnose.locate import driven_tank
 
     cal = Calibration.of(nominal)
@@ -168,7 +168,8 @@ def test_alternative_experiment_names_the_separating_test():
 def test_alternatives_are_the_significant_candidates_within_alt_dbic():
     """The chosen finding is the best held-out BIC; others significant on their own and within
     ALT_DBIC of it are alternatives (best first), the rest are not."""
-    from civic.diagnose.fit import ALT_DBIC, FitResult, _alternatives
+    from civic.diagnose.forward import ALT_DBIC, indistinguishable
+    from civic.diagnose.problem import FitResult
     from civic.diagnose.mechanisms import FlowLaw, Leak, ValveCharacteristic
 
     def res(bic, sse):
@@ -182,17 +183,17 @@ def test_alternatives_are_the_significant_candidates_within_alt_dbic():
     fits = [(fl, res(-100.0, 40.0)), (vc, res(-100.0 + ALT_DBIC / 2, 42.0)),
             (lk, res(-100.0 + 2 * ALT_DBIC, 50.0)), (weak, res(-5.0, 95.0))]
     results = [(c, r, (r, ref, "")) for c, r in fits]
-    alts = _alternatives(results, fl, -100.0)
+    alts = indistinguishable(results, fl, -100.0)
     assert [a["mechanism"] for a in alts] == [vc]
     assert alts[0]["dbic_vs_chosen"] == ALT_DBIC / 2
     # one judged with the blocks swapped counts by its gain over its own reference
     swapped_ref = res(50.0, 100.0)
     results.append((lk, fits[2][1], (res(50.0 - 100.0 + ALT_DBIC / 4, 44.0), swapped_ref, "blocks swapped")))
-    alts = _alternatives(results, fl, -100.0)
+    alts = indistinguishable(results, fl, -100.0)
     assert [a["mechanism"] for a in alts] == [lk, vc]
     # decided on both block orders: the pooled evidence compares the two decided together
     pooled = {fl.label: -300.0, vc.label: -300.0 + 0.9 * ALT_DBIC}
-    alts = _alternatives(results, fl, -100.0, pooled=pooled)
+    alts = indistinguishable(results, fl, -100.0, pooled=pooled)
     assert [a["mechanism"] for a in alts] == [lk, vc]
     assert alts[1]["dbic_both_orders"] == -300.0 + 0.9 * ALT_DBIC
     assert abs(alts[1]["dbic_vs_chosen"] - 0.9 * ALT_DBIC) < 1e-9
@@ -204,7 +205,8 @@ def test_free_run_swaps_list_what_explains_the_held_out_data_as_well():
     alternative when the held-out RMSE stays within MIN_ABLATION of the chosen set's (and below
     the set without the finding) and it is not negligible; best first, never the finding's own
     family on its component."""
-    from civic.diagnose.fit import MIN_ABLATION, FitResult, _swaps
+    from civic.diagnose.backward import MIN_ABLATION, _swaps
+    from civic.diagnose.problem import FitResult
     from civic.diagnose.mechanisms import FlowLaw, PumpDeadZone, PumpHead
 
     chosen = FlowLaw("out1", {"exponent": 0.56}, {"exponent": (0.15, 2)}, {"form": "exponent"})
@@ -277,7 +279,7 @@ def test_contenders_one_order_does_not_separate_are_decided_on_both(nominal):
     the calibration spread: on the held-out blocks V2's valve characteristic (n = 0.92) led the
     flow law by 1.9 in BIC, within ALT_DBIC; decided on both block orders the flow law wins by far
     more than ALT_DBIC, so it is the finding, alone, and the characteristic is no alternative."""
-    from civic.diagnose.fit import ALT_DBIC
+    from civic.diagnose.forward import ALT_DBIC
     from civic.diagnose.report import build_report
 
     plant = _bench_draw(nominal, 0.31060626, 0.25069528, 0.12302626, 0.29889611)
@@ -327,14 +329,14 @@ def test_a_swapped_candidate_is_compared_on_its_own_reference(closed_loop_case, 
     first round on its own reference (BIC -97.5 against the offset's -89 on the held-out blocks)
     and a V1 closure over the same spell followed it. Judged swapped too, the offset does as well,
     and it is the one finding."""
-    from civic.diagnose import fit
+    from civic.diagnose import forward
 
     rec = closed_loop_case("offset_L1_small", seed=2)
     d = diagnose(nominal, rec)
     assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("sensor_offset", "L1")]
     assert abs(d.final_all.mechanisms[0].values()["offset"] - 0.1) < 0.01
     # without the fair comparison the swapped spell wins: the test sees the case it is about
-    monkeypatch.setattr(fit, "_fair_swapped", lambda prob, chosen, results, best, min_gain: best)
+    monkeypatch.setattr(forward, "_fair_swapped", lambda prob, chosen, results, best, min_gain: best)
     assert diagnose(nominal, rec).findings[0]["mechanism"].name != "sensor_offset"
 
 
@@ -346,7 +348,7 @@ def test_effect_a_negligible_one_outranks_is_no_finding(nominal):
     the replay stage's best was the pump's dead zone, negligible, and the T1 rim at the record's
     peak level came next and was named, an overflow that never happened. Ranked clearly below a
     negligible effect, the rim is no finding either: the report says what explained the rest."""
-    from civic.diagnose.fit import ALT_DBIC
+    from civic.diagnose.forward import ALT_DBIC
     from civic.diagnose.report import build_report
 
     plant = _bench_draw(nominal, *SEED102)

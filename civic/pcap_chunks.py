@@ -1,10 +1,12 @@
-"""Classic pcaps in chunks: read in whole records (bounded memory whatever the file's size),
+"""Captures in chunks: read in whole records (bounded memory whatever the file's size),
 written as frames arrive.
 
 `PcapChunks(path)` checks the file header (one-line errors, as `read_pcap`) and iterates
 `Chunk`s: the bytes of consecutive records (record headers included, so writing each chunk's
 `data` after `header` gives the file back), where each frame starts and which frames are plant
 messages. A record cut off at the end of the file is the same one-line error as `read_pcap`.
+A pcapng is walked block by block (`civic.pcapng`): its `header` is empty, its chunks hold every
+block, packets or not, so the file comes back as pcapng.
 """
 from __future__ import annotations
 
@@ -16,8 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
-from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, PCAP_HEADER, frame_heads, frame_kinds, pcap_header,
-                        record_offsets, record_times)
+from civic.pcapng import PcapNgBlocks
+from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, PCAP_HEADER, frame_heads, frame_kinds, is_pcapng,
+                        pcap_header, record_offsets, record_times)
 
 CHUNK_BYTES = 1 << 20          # file bytes read per chunk (13 k plant-message records: fits the caches)
 RECORD_HEADER = 16
@@ -25,28 +28,24 @@ RECORD_HEADER = 16
 
 @dataclass
 class Chunk:
-    """Consecutive records of a pcap file: data[:end] holds them, rec[i] is where record i starts."""
+    """Consecutive records of a capture: data[:end] holds them, offset[i] is where frame i starts."""
 
     data: bytearray
     end: int
-    rec: np.ndarray
+    offset: np.ndarray
     caplen: np.ndarray
-    order: str
-    frac: int
     udp_port: int
     plant_prefix: str
+    order: str = "<"                 # classic pcap: the record headers' byte order and time fraction
+    frac: int = 1_000_000
+    t: np.ndarray | None = None      # pcapng: the capture times, read with the blocks
 
     def __len__(self) -> int:
-        return len(self.rec)
+        return len(self.offset)
 
     @cached_property
     def buf(self) -> np.ndarray:
         return np.frombuffer(self.data, np.uint8)
-
-    @property
-    def offset(self) -> np.ndarray:
-        """Where each frame starts in data."""
-        return self.rec + RECORD_HEADER
 
     @cached_property
     def heads(self) -> np.ndarray:
@@ -62,7 +61,9 @@ class Chunk:
 
     def times(self, idx=slice(None)) -> np.ndarray:
         """Capture times (s) of the records idx."""
-        return record_times(self.buf, self.rec[idx], self.order, self.frac)
+        if self.t is not None:
+            return self.t[idx]
+        return record_times(self.buf, self.offset[idx] - RECORD_HEADER, self.order, self.frac)
 
     def records(self) -> memoryview:
         """The records' bytes, as they go back into a file."""
@@ -81,7 +82,11 @@ class PcapChunks:
                 self.header = fh.read(24)
         except OSError as exc:
             raise CivicError(f"cannot read {self.path}: {exc.strerror}") from exc
-        self.order, self.frac = pcap_header(self.header, self.path)
+        self.blocks = PcapNgBlocks(self.path) if is_pcapng(self.header) else None
+        if self.blocks is not None:
+            self.header = b""            # a pcapng's first block is a block like the others
+        else:
+            self.order, self.frac = pcap_header(self.header, self.path)
 
     def __iter__(self):
         pending = bytearray()
@@ -98,9 +103,15 @@ class PcapChunks:
                 got = fh.readinto(memoryview(data)[len(pending):])
                 final = got == 0
                 del data[len(pending) + got:]
-                rec, caplen, end = record_offsets(memoryview(data), self.order, 0, self.path, final, base)
-                if len(rec):
-                    yield Chunk(data, end, rec, caplen, self.order, self.frac, self.udp_port, self.plant_prefix)
+                if self.blocks is not None:
+                    offset, caplen, t, end = self.blocks.walk(memoryview(data), final, base)
+                    chunk = Chunk(data, end, offset, caplen, self.udp_port, self.plant_prefix, t=t)
+                else:
+                    rec, caplen, end = record_offsets(memoryview(data), self.order, 0, self.path, final, base)
+                    chunk = Chunk(data, end, rec + RECORD_HEADER, caplen, self.udp_port, self.plant_prefix,
+                                  self.order, self.frac)
+                if end:
+                    yield chunk
                 if final:
                     return
                 pending = data[end:]

@@ -56,7 +56,7 @@ def replay_stream(src: Path, dst: Path, switch: StreamingSwitch, entries: Entrie
     chunks = PcapChunks(src, entries.udp_port, entries.plant_prefix)
     stats = {"frames": 0, "plant": 0}
     index = 0
-    chunk = None
+    last = None                                 # the last chunk that held frames
     try:
         out = open(dst, "wb")
     except OSError as exc:
@@ -77,13 +77,14 @@ def replay_stream(src: Path, dst: Path, switch: StreamingSwitch, entries: Entrie
                     events += [event(c, t[j], names) for j, c in
                                enumerate(changes(rows, heads["src"], heads["seq"], index))]
                 index += len(chunk)
+                last = chunk if len(chunk) else last
                 advance(chunk.end)
     except CivicError:                   # a corrupt or truncated input: no partial output left behind
         Path(dst).unlink(missing_ok=True)
         raise
     stats["evaluated"] = switch.given
-    if chunk is not None:                       # records are in capture order: the end is in the last chunk
-        stats["t_end"] = float(chunk.times().max())
+    if last is not None:                        # records are in capture order: the end is in the last chunk
+        stats["t_end"] = float(last.times().max())
     return stats
 
 

@@ -1,7 +1,7 @@
 """The plant's UDP control message (wire format v1) and fast pcap I/O.
 
-Captures are read into numpy arrays in bulk: no per-packet Python object.
-`read_pcap` returns a `Capture` holding the file's bytes, each record's
+Captures (classic pcap, or pcapng via `civic.pcapng`) are read into numpy arrays in bulk: no
+per-packet Python object. `read_pcap` returns a `Capture` holding the file's bytes, each record's
 offset and a structured array of decoded message fields; `Capture.write`
 writes it back byte-identical except for patched verdicts and checksums.
 `scapy_layer.PlantMessage` is the scapy twin, for crafting and dissecting.
@@ -206,15 +206,16 @@ def record_times(arr: np.ndarray, rec: np.ndarray, order: str, frac: int) -> np.
     return _u32_at(arr, rec, order) + _u32_at(arr, rec + 4, order) / frac
 
 
+def is_pcapng(head) -> bool:
+    """A file that starts with a pcapng Section Header Block (`civic.pcapng` reads it)."""
+    return len(head) >= 4 and struct.unpack_from("<I", head)[0] == PCAPNG_MAGIC
+
+
 def pcap_header(head: bytes, path: str) -> tuple[str, int]:
     """(byte order, fraction per second) of a classic Ethernet pcap's file header; errors are one line."""
     if len(head) < 24:
-        if len(head) >= 4 and struct.unpack_from("<I", head)[0] == PCAPNG_MAGIC:
-            raise CivicError(f"{path}: pcapng is not supported; convert it with 'editcap -F pcap'")
         raise CivicError(f"{path}: not a pcap file (only {len(head)} bytes)")
     (magic,) = struct.unpack_from("<I", head)
-    if magic == PCAPNG_MAGIC:
-        raise CivicError(f"{path}: pcapng is not supported; convert it with 'editcap -F pcap'")
     if magic not in PCAP_MAGICS:
         raise CivicError(f"{path}: not a pcap file (magic 0x{magic:08x})")
     order, frac = PCAP_MAGICS[magic]
@@ -286,7 +287,7 @@ def decode_frames(data, offset: np.ndarray, caplen: np.ndarray, udp_port: int = 
 
 def read_pcap(path: str | Path, udp_port: int = DEFAULT_UDP_PORT,
               plant_prefix: str = DEFAULT_PLANT_PREFIX) -> Capture:
-    """Read a classic pcap (Ethernet link type) into a Capture, without scapy."""
+    """Read a pcap or pcapng capture (Ethernet link type) into a Capture, without scapy."""
     path = str(path)
     try:
         with open(path, "rb") as fh:
@@ -294,11 +295,17 @@ def read_pcap(path: str | Path, udp_port: int = DEFAULT_UDP_PORT,
             data = data[:fh.readinto(data)]
     except OSError as exc:
         raise CivicError(f"cannot read {path}: {exc.strerror}") from exc
-    order, frac = pcap_header(bytes(data[:24]), path)
-    rec, caplen, _ = record_offsets(memoryview(data), order, 24, path)
-    offset = rec + 16
+    if is_pcapng(data):
+        from civic.pcapng import PcapNgBlocks
+
+        offset, caplen, t, _ = PcapNgBlocks(path).walk(memoryview(data))
+    else:
+        order, frac = pcap_header(bytes(data[:24]), path)
+        rec, caplen, _ = record_offsets(memoryview(data), order, 24, path)
+        offset = rec + 16
+        t = record_times(np.frombuffer(data, np.uint8), rec, order, frac)
     messages = decode_frames(data, offset, caplen, udp_port, plant_prefix)
-    messages["t"] = record_times(np.frombuffer(data, np.uint8), rec, order, frac)
+    messages["t"] = t
     return Capture(data=data, offset=offset, caplen=caplen, messages=messages, path=path)
 
 

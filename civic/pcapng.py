@@ -1,0 +1,129 @@
+"""pcapng (Wireshark's and dumpcap's default format): where each frame is, and when it was captured.
+
+`PcapNgBlocks(path).walk(raw, final)` walks the blocks of a pcapng file, or of consecutive
+blocks of it read in chunks, and returns each Enhanced Packet Block's frame offset, captured
+length and capture time. The state that spans chunks (the section's byte order, its
+interfaces' link types and time resolutions) lives in the walker. Frames stay where they are
+in the file's bytes, so a patched verdict is written back into the pcapng itself. Errors are
+one line: a cut-off or corrupt block, a frame on a non-Ethernet interface, and the packet
+blocks that carry no capture time (Simple) or are obsolete (Packet), which are never skipped
+silently.
+"""
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+from civic.errors import CivicError
+from civic.wire import LINKTYPE_ETHERNET, PCAPNG_MAGIC
+
+BYTE_ORDER_MAGIC = 0x1A2B3C4D         # as read little-endian; 0x4D3C2B1A: the section is big-endian
+IDB, EPB = 0x00000001, 0x00000006       # interface description, enhanced packet
+UNSUPPORTED = {0x00000002: "obsolete Packet", 0x00000003: "Simple Packet (no capture time)"}
+OPT_TSRESOL, OPT_TSOFFSET = 9, 14       # interface options: time resolution, seconds added
+MAX_BLOCK = 1 << 24                     # larger than any frame: a length beyond it is corruption
+MIN_BLOCK = 12                          # type, length, length again
+
+
+class PcapNgBlocks:
+    """The blocks of one pcapng file, walked in order (whole, or chunk after chunk)."""
+
+    def __init__(self, path: str):
+        self.path = path
+        self.order = "<"
+        self.interfaces: list[tuple[int, int, int]] = []    # (link type, units per second, offset s)
+
+    def walk(self, raw, final: bool = True, base: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """(frame offsets, captured lengths, capture times in s, end) of the packets in the
+        complete blocks of raw; a block cut off at the end is an error when `final`, else where
+        the walk stops (`end`). `base`: raw's offset in the file, for error messages."""
+        arr = np.frombuffer(raw, np.uint8)
+        offsets, caplens, times = [], [], []
+        size, pos, look = len(raw), 0, 64
+        while pos < size:
+            at = base + pos
+            if size - pos < MIN_BLOCK:
+                if not final:
+                    break
+                raise CivicError(f"{self.path}: truncated pcapng: {size - pos} stray bytes at offset {at}")
+            if struct.unpack_from("<I", raw, pos)[0] == PCAPNG_MAGIC:      # a section starts (palindromic type)
+                self._section(raw, pos, at)
+            kind, length = struct.unpack_from(self.order + "II", raw, pos)
+            if length < MIN_BLOCK or length % 4 or length > MAX_BLOCK:
+                raise CivicError(f"{self.path}: corrupt pcapng: block at offset {at} claims {length} bytes")
+            if pos + length > size:
+                if not final:
+                    break
+                raise CivicError(f"{self.path}: truncated pcapng: block at offset {at} needs {length} bytes, "
+                                 f"{size - pos} remain")
+            if kind == EPB:
+                # a run of packet blocks of this length on this interface, read at once (a capture's
+                # packets of one size back to back: the usual case)
+                k = min(look, (size - pos) // length)
+                head = np.ndarray((k, 6), self.order + "u4", arr, pos, (length, 4))    # type .. captured length
+                same = (head[:, 0] == EPB) & (head[:, 1] == length) & (head[:, 2] == head[0, 2])
+                n = int(np.argmin(same)) if not same.all() else k
+                offsets.append(pos + 28 + length * np.arange(n, dtype=np.int64))
+                caplens.append(head[:n, 5].astype(np.uint32))
+                times.append(self._times(head[:n], at))
+                pos += n * length
+                look = look * 2 if n == k else 64
+                continue
+            if kind == IDB:
+                self._interface(raw, pos, length, at)
+            elif kind in UNSUPPORTED:
+                raise CivicError(f"{self.path}: pcapng {UNSUPPORTED[kind]} blocks are not supported "
+                                 f"(offset {at}); convert with 'editcap -F pcap'")
+            pos += length
+        if not offsets:
+            return np.zeros(0, np.int64), np.zeros(0, np.uint32), np.zeros(0, np.float64), pos
+        return np.concatenate(offsets), np.concatenate(caplens), np.concatenate(times), pos
+
+    def _times(self, head: np.ndarray, at: int) -> np.ndarray:
+        """Capture times (s) of a run of packet blocks on one interface (their first 6 words)."""
+        iface, length = int(head[0, 2]), int(head[0, 1])
+        if iface >= len(self.interfaces) or np.any(32 + head[:, 5].astype(np.int64) > length):
+            raise CivicError(f"{self.path}: corrupt pcapng: packet block at offset {at} or after it")
+        link, units, shift = self.interfaces[iface]
+        if link != LINKTYPE_ETHERNET:
+            raise CivicError(f"{self.path}: link type {link} is not Ethernet (1)")
+        stamp = head[:, 3].astype(np.uint64) << np.uint64(32) | head[:, 4].astype(np.uint64)
+        whole, part = np.divmod(stamp, np.uint64(units))
+        return whole.astype(np.float64) + shift + part.astype(np.float64) / units
+
+    def _section(self, raw, pos: int, at: int) -> None:
+        """A Section Header Block: its byte order; interfaces are numbered afresh."""
+        if len(raw) - pos < 16:
+            raise CivicError(f"{self.path}: truncated pcapng: section header at offset {at}")
+        magic = struct.unpack_from("<I", raw, pos + 8)[0]
+        if magic not in (BYTE_ORDER_MAGIC, 0x4D3C2B1A):
+            raise CivicError(f"{self.path}: corrupt pcapng: section header at offset {at} has no byte-order magic")
+        self.order = "<" if magic == BYTE_ORDER_MAGIC else ">"
+        self.interfaces = []
+
+    def _interface(self, raw, pos: int, length: int, at: int) -> None:
+        """An Interface Description Block: link type, time resolution (default microseconds) and
+        offset, from its options."""
+        if length < 20:
+            raise CivicError(f"{self.path}: corrupt pcapng: interface block at offset {at}")
+        link = struct.unpack_from(self.order + "H", raw, pos + 8)[0]
+        units, shift = 1_000_000, 0
+        opt, end = pos + 16, pos + length - 4
+        while opt + 4 <= end:
+            code, n = struct.unpack_from(self.order + "HH", raw, opt)
+            if code == 0:                            # opt_endofopt
+                break
+            if opt + 4 + n > end:
+                raise CivicError(f"{self.path}: corrupt pcapng: interface options at offset {at + opt - pos}")
+            if code == OPT_TSRESOL and n >= 1:
+                r = raw[opt + 4]
+                units = 2 ** (r & 0x7F) if r & 0x80 else 10 ** r
+                if units > 1 << 63:
+                    raise CivicError(f"{self.path}: pcapng interface at offset {at}: time resolution 0x{r:02x} "
+                                     "is not supported (more than 2^63 units per second)")
+            elif code == OPT_TSOFFSET and n >= 8:
+                shift = struct.unpack_from(self.order + "q", raw, opt + 4)[0]
+            opt += 4 + (n + 3) // 4 * 4
+        self.interfaces.append((link, units, shift))
+

@@ -58,6 +58,8 @@ class PcapNgBlocks:
                 raise CivicError(f"{self.path}: truncated pcapng: block at offset {at} needs {length} bytes, "
                                  f"{size - pos} remain")
             if kind == EPB:
+                if length < 32:
+                    raise CivicError(f"{self.path}: corrupt pcapng: packet block at offset {at} of {length} bytes")
                 # a run of packet blocks of this length on this interface, read at once (a capture's
                 # packets of one size back to back: the usual case)
                 k = min(look, (size - pos) // length)

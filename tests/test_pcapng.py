@@ -118,6 +118,7 @@ FRAME = bytes(plant())
 @pytest.mark.parametrize("tail, message", [
     (None, "truncated pcapng"),
     (struct.pack("<III", 6, 10, 0), "corrupt pcapng"),                       # a block 10 bytes long
+    (struct.pack("<IIII", 6, 16, 0, 16), "corrupt pcapng"),                  # a packet block with no room
     (packet("<", 5, 0, FRAME), "corrupt pcapng"),                            # on no interface 5
     (section("<") + interface("<", link=101) + packet("<", 0, 0, FRAME), "not Ethernet"),
     (block("<", 3, struct.pack("<I", len(FRAME)) + FRAME), "Simple Packet"),  # no capture time

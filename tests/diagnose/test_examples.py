@@ -145,7 +145,8 @@ def test_short_runs_of_lost_messages_are_interpolated():
                                          ("drain_v075_warning_r2", 0.30), ("drain_v075_normal_r1", 0.0),
                                          ("drain_v075_normal_r4", 0.0)])
 def test_short_drain_tests(tmp_path, run, closure):
-    """18 s drain tests (traces/training): a half-closed VM1 is a V2 coefficient finding, alone;
+    """18 s drain tests (traces/training): a half-closed VM1 is a V2 coefficient finding, alone, whose
+    evidence reads it as a partly closed valve or a clog;
     a normal run raises nothing (r2 and r4 used to get a sensor map on the still L1, exponent 2)."""
     out = tmp_path / "r.json"
     assert main(["diagnose", str(ROOT / "traces" / "training" / f"{run}.pcap"), "--json", str(out), "-q"]) == 0
@@ -154,7 +155,10 @@ def test_short_drain_tests(tmp_path, run, closure):
         assert rep["mismatch"] is False
         return
     assert [(f["mechanism"], f["component"]) for f in rep["findings"]] == [("coefficient", "V2")]
-    assert abs(rep["findings"][0]["parameters"]["factor"] - (1 - closure)) < 0.05
+    factor = rep["findings"][0]["parameters"]["factor"]
+    assert abs(factor - (1 - closure)) < 0.05
+    # the evidence says what such a coefficient means on the plant
+    assert f"V2 passes {round((1 - factor) * 100)} % less than its datasheet" in rep["findings"][0]["evidence"]
 
 
 @pytest.mark.parametrize("run", ["fill_warning_r3", "fill_warning_r5"])
@@ -167,6 +171,7 @@ def test_short_fill_tests_name_the_closure_alone(tmp_path, run):
     rep = json.loads(out.read_text())
     assert [(f["mechanism"], f["component"]) for f in rep["findings"]] == [("coefficient", "P1")]
     assert abs(rep["findings"][0]["parameters"]["factor"] - 0.8) < 0.05
+    assert "P1 delivers" in rep["findings"][0]["evidence"] and "manual valve partly closed" in rep["findings"][0]["evidence"]
 
 
 def _continuous_cases():

@@ -1,4 +1,4 @@
-"""Coefficient: a flow coefficient, pump gain or tank area off by more than calibration spread."""
+"""Coefficient: a link's flow coefficient or a pump's gain off by more than the calibration spread."""
 from __future__ import annotations
 
 from .base import Mechanism
@@ -47,4 +47,12 @@ class Coefficient(Mechanism):
         return abs(p["factor"] - 1.0) <= 1.5 * CAL_SPREAD   # within calibration territory
 
     def describe(self, p):
-        return f"{p['path']} = {p['value']:.4g} ({(p['factor'] - 1) * 100:+.0f} % vs nominal)"
+        change = (p["factor"] - 1) * 100
+        text = f"{p['path']} = {p['value']:.4g} ({change:+.0f} % vs nominal)"
+        if change < 0:
+            # what a user meets on a test run with a hand valve partly closed (VM1, VM2): the same
+            # coefficient as a worn or clogged part; one switched on mid-run is a dated `closure`
+            verb = "delivers" if p["path"].startswith("pump.") else "passes"
+            text += (f": {self.component} {verb} {-change:.0f} % less than its datasheet over the whole record, "
+                     "as a manual valve partly closed on its line or a clog would")
+        return text

@@ -1,7 +1,7 @@
 """Which experiment would separate two explanations the record cannot tell apart.
 
 When the held-out evidence does not separate the chosen finding from another candidate
-(`civic.diagnose.fit.ALT_DBIC`), the report names a test that would: where possible one of
+(`civic.diagnose.forward.ALT_DBIC`), the report names a test that would: where possible one of
 the plant's own procedures (fill test, drain test at two valve openings, inventory after a
 known fill), otherwise a step test that moves the two components apart.
 """

@@ -161,11 +161,13 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
             if mech.component in diag.loc.pinned:
                 ev.append(f"the calibration alone pinned {mech.component}'s coefficient at the datasheet "
                           "spread's edge")
-        ev.append(fitted.describe(fitted.values()) if fitted.params or fitted.fixed else "")
+        description = fitted.describe(fitted.values()) if fitted.params or fitted.fixed else ""
+        ev.append(description)
         findings.append({
             "mechanism": mech.name,
             "component": mech.component,
             "parameters": params,
+            "description": description,
             "intervals": [[round(a, 2), round(b, 2)] for a, b in intervals],
             "evidence": "; ".join(e for e in ev if e),
             "heldout_dbic": round(f["dbic"], 2),
@@ -388,6 +390,14 @@ def print_summary(report: dict, console=None) -> None:
             ivs = ", ".join(f"{a:g}-{b:g}" for a, b in iv[:3]) + (f" (+{len(iv) - 3})" if len(iv) > 3 else "")
             t.add_row(str(i), f["mechanism"], str(f["component"]), params, f"{f['heldout_dbic']:+.1f}", ivs)
         console.print(t)
+        # what each finding means, and what the record cannot tell it from (the JSON has the evidence)
+        for i, f in enumerate(report["findings"], 1):
+            if f.get("description"):
+                console.print(f"{i}. {f['description']}", markup=False, highlight=False)
+            for a in f.get("alternatives", ()):
+                console.print(f"   the record cannot tell it from {a['mechanism']} {a['component']} (held-out BIC "
+                              f"{a['heldout_dbic_vs_chosen']:+.1f} from the chosen one's: {a['description']}); to "
+                              f"tell them apart: {a['experiment']}", markup=False, highlight=False)
     abl = report["fit"].get("ablation")
     if abl:
         t = Table(title=f"ablation: held-out free-run RMSE (blocked {abl['folds']}-fold CV in time, refit per fold)")

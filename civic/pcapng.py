@@ -24,6 +24,7 @@ UNSUPPORTED = {0x00000002: "obsolete Packet", 0x00000003: "Simple Packet (no cap
 OPT_TSRESOL, OPT_TSOFFSET = 9, 14       # interface options: time resolution, seconds added
 MAX_BLOCK = 1 << 24                     # larger than any frame: a length beyond it is corruption
 MIN_BLOCK = 12                          # type, length, length again
+SECTION_HEAD = 16                       # a section header's type, length and byte-order magic
 
 
 class PcapNgBlocks:
@@ -48,6 +49,8 @@ class PcapNgBlocks:
                     break
                 raise CivicError(f"{self.path}: truncated pcapng: {size - pos} stray bytes at offset {at}")
             if struct.unpack_from("<I", raw, pos)[0] == PCAPNG_MAGIC:      # a section starts (palindromic type)
+                if size - pos < SECTION_HEAD and not final:
+                    break                                 # its byte-order magic is in the next chunk
                 self._section(raw, pos, at)
             kind, length = struct.unpack_from(self.order + "II", raw, pos)
             if length < MIN_BLOCK or length % 4 or length > MAX_BLOCK:
@@ -96,7 +99,7 @@ class PcapNgBlocks:
 
     def _section(self, raw, pos: int, at: int) -> None:
         """A Section Header Block: its byte order; interfaces are numbered afresh."""
-        if len(raw) - pos < 16:
+        if len(raw) - pos < SECTION_HEAD:
             raise CivicError(f"{self.path}: truncated pcapng: section header at offset {at}")
         magic = struct.unpack_from("<I", raw, pos + 8)[0]
         if magic not in (BYTE_ORDER_MAGIC, 0x4D3C2B1A):

@@ -10,6 +10,7 @@ from scapy.utils import PcapNgWriter, rdpcap
 from civic.cli import main
 from civic.errors import CivicError
 from civic.pcap_chunks import PcapChunks
+from civic.pcapng import PcapNgBlocks
 from civic.wire import SIGNALS, read_pcap
 from data import TRAINING
 from frames import junk_frames, plant
@@ -96,6 +97,26 @@ def test_chunks_walk_the_blocks_as_the_whole_file(as_pcapng):
     assert np.array_equal(np.concatenate([c.times() for c in parts]), whole.messages["t"])
     assert np.array_equal(np.concatenate([c.plant for c in parts]), whole.messages["plant"])
     assert chunks.header + b"".join(bytes(c.records()) for c in parts) == as_pcapng.read_bytes()
+
+
+def test_every_chunk_boundary_walks_as_the_whole_file():
+    """Two sections (little-, then big-endian), the walk cut at every byte: a chunk may end anywhere,
+    inside a section header's first 16 bytes too (its byte order is read from there)."""
+    frame = bytes(plant())
+    data = (section("<") + interface("<") + packet("<", 0, 10, frame)
+            + section(">") + interface(">") + packet(">", 0, 20, frame))
+    whole = PcapNgBlocks("two.pcapng").walk(memoryview(data))
+    assert whole[2].tolist() == [1e-5, 2e-5]
+    for n in range(1, len(data)):
+        walker, pending, base, offsets, times = PcapNgBlocks("two.pcapng"), b"", 0, [], []
+        for i in range(0, len(data), n):
+            buf = pending + data[i:i + n]
+            offset, _, t, end = walker.walk(memoryview(buf), i + n >= len(data), base)
+            offsets.append(offset + base)
+            times.append(t)
+            pending, base = buf[end:], base + end
+        assert np.array_equal(np.concatenate(offsets), whole[0]), n
+        assert np.array_equal(np.concatenate(times), whole[2]), n
 
 
 def test_replay_writes_pcapng_back_with_the_verdicts_of_its_pcap(as_pcapng, tmp_path):

@@ -19,8 +19,9 @@ import numpy as np
 
 from civic.errors import CivicError
 from civic.pcapng import PcapNgBlocks
-from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, PCAP_HEADER, frame_heads, frame_kinds, is_pcapng,
-                        pcap_header, record_offsets, record_times)
+from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, LINK_VIEW, LINKTYPE_ETHERNET, PCAP_HEADER,
+                        ethertypes, frame_heads, frame_kinds, is_pcapng, pcap_header, record_offsets, record_times,
+                        viewed)
 
 CHUNK_BYTES = 1 << 20          # file bytes read per chunk (13 k plant-message records: fits the caches)
 RECORD_HEADER = 16
@@ -28,7 +29,8 @@ RECORD_HEADER = 16
 
 @dataclass
 class Chunk:
-    """Consecutive records of a capture: data[:end] holds them, offset[i] is where frame i starts."""
+    """Consecutive records of a capture: data[:end] holds them, offset[i] is where frame i's
+    Ethernet view starts (`wire.LINK_VIEW`)."""
 
     data: bytearray
     end: int
@@ -38,7 +40,9 @@ class Chunk:
     plant_prefix: str
     order: str = "<"                 # classic pcap: the record headers' byte order and time fraction
     frac: int = 1_000_000
+    view: int = 0                    # classic pcap: from a record's frame to its Ethernet view
     t: np.ndarray | None = None      # pcapng: the capture times, read with the blocks
+    link: np.ndarray | None = None   # the frames' link types; None: all Ethernet
 
     def __len__(self) -> int:
         return len(self.offset)
@@ -57,13 +61,14 @@ class Chunk:
         """Which frames are plant messages (the parser's checks)."""
         if not len(self):
             return np.zeros(0, bool)
-        return frame_kinds(self.heads, self.caplen, self.udp_port, self.plant_prefix)[2]
+        return frame_kinds(self.heads, self.caplen, self.udp_port, self.plant_prefix,
+                           ethertypes(self.heads, self.buf, self.offset, self.link))[2]
 
     def times(self, idx=slice(None)) -> np.ndarray:
         """Capture times (s) of the records idx."""
         if self.t is not None:
             return self.t[idx]
-        return record_times(self.buf, self.offset[idx] - RECORD_HEADER, self.order, self.frac)
+        return record_times(self.buf, self.offset[idx] - self.view - RECORD_HEADER, self.order, self.frac)
 
     def records(self) -> memoryview:
         """The records' bytes, as they go back into a file."""
@@ -86,7 +91,7 @@ class PcapChunks:
         if self.blocks is not None:
             self.header = b""            # a pcapng's first block is a block like the others
         else:
-            self.order, self.frac = pcap_header(self.header, self.path)
+            self.order, self.frac, self.linktype = pcap_header(self.header, self.path)
 
     def __iter__(self):
         pending = bytearray()
@@ -104,12 +109,15 @@ class PcapChunks:
                 final = got == 0
                 del data[len(pending) + got:]
                 if self.blocks is not None:
-                    offset, caplen, t, end = self.blocks.walk(memoryview(data), final, base)
-                    chunk = Chunk(data, end, offset, caplen, self.udp_port, self.plant_prefix, t=t)
+                    offset, caplen, t, link, end = self.blocks.walk(memoryview(data), final, base)
+                    chunk = Chunk(data, end, offset, caplen, self.udp_port, self.plant_prefix, t=t, link=link)
                 else:
                     rec, caplen, end = record_offsets(memoryview(data), self.order, 0, self.path, final, base)
-                    chunk = Chunk(data, end, rec + RECORD_HEADER, caplen, self.udp_port, self.plant_prefix,
-                                  self.order, self.frac)
+                    view = LINK_VIEW[self.linktype]
+                    offset, caplen = viewed(rec + RECORD_HEADER, caplen, view)
+                    link = None if self.linktype == LINKTYPE_ETHERNET else np.full(len(rec), self.linktype, np.uint16)
+                    chunk = Chunk(data, end, offset, caplen, self.udp_port, self.plant_prefix,
+                                  self.order, self.frac, view, link=link)
                 if end:
                     yield chunk
                 if final:

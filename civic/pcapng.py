@@ -1,11 +1,12 @@
 """pcapng (Wireshark's and dumpcap's default format): where each frame is, and when it was captured.
 
 `PcapNgBlocks(path).walk(raw, final)` walks the blocks of a pcapng file, or of consecutive
-blocks of it read in chunks, and returns each Enhanced Packet Block's frame offset, captured
-length and capture time. The state that spans chunks (the section's byte order, its
+blocks of it read in chunks, and returns each Enhanced Packet Block's frame offset and captured
+length (of its Ethernet view, `wire.LINK_VIEW`), capture time and link type. The state that spans chunks (the section's byte order, its
 interfaces' link types and time resolutions) lives in the walker. Frames stay where they are
 in the file's bytes, so a patched verdict is written back into the pcapng itself. Errors are
-one line: a cut-off or corrupt block, a frame on a non-Ethernet interface, and the packet
+one line: a cut-off or corrupt block, a frame on an interface neither Ethernet nor Linux
+cooked, and the packet
 blocks that carry no capture time (Simple) or are obsolete (Packet), which are never skipped
 silently.
 """
@@ -16,7 +17,7 @@ import struct
 import numpy as np
 
 from civic.errors import CivicError
-from civic.wire import LINKTYPE_ETHERNET, PCAPNG_MAGIC
+from civic.wire import LINKTYPE_ETHERNET, PCAPNG_MAGIC, link_view
 
 BYTE_ORDER_MAGIC = 0x1A2B3C4D         # as read little-endian; 0x4D3C2B1A: the section is big-endian
 IDB, EPB = 0x00000001, 0x00000006       # interface description, enhanced packet
@@ -35,12 +36,14 @@ class PcapNgBlocks:
         self.order = "<"
         self.interfaces: list[tuple[int, int, int]] = []    # (link type, units per second, offset s)
 
-    def walk(self, raw, final: bool = True, base: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-        """(frame offsets, captured lengths, capture times in s, end) of the packets in the
-        complete blocks of raw; a block cut off at the end is an error when `final`, else where
-        the walk stops (`end`). `base`: raw's offset in the file, for error messages."""
+    def walk(self, raw, final: bool = True,
+             base: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, int]:
+        """(frame offsets, captured lengths, capture times in s, link types, end) of the packets
+        in the complete blocks of raw: offsets and lengths of the frames' Ethernet views, link
+        types None when all are Ethernet. A block cut off at the end is an error when `final`,
+        else where the walk stops (`end`). `base`: raw's offset in the file, for error messages."""
         arr = np.frombuffer(raw, np.uint8)
-        offsets, caplens, times = [], [], []
+        offsets, caplens, times, links = [], [], [], []
         size, pos, look = len(raw), 0, 64
         while pos < size:
             at = base + pos
@@ -69,9 +72,12 @@ class PcapNgBlocks:
                 head = np.ndarray((k, 6), self.order + "u4", arr, pos, (length, 4))    # type .. captured length
                 same = (head[:, 0] == EPB) & (head[:, 1] == length) & (head[:, 2] == head[0, 2])
                 n = int(np.argmin(same)) if not same.all() else k
-                offsets.append(pos + 28 + length * np.arange(n, dtype=np.int64))
-                caplens.append(head[:n, 5].astype(np.uint32))
-                times.append(self._times(head[:n], at))
+                t, link = self._times(head[:n], at)
+                view = link_view(link, self.path)
+                offsets.append(pos + 28 + view + length * np.arange(n, dtype=np.int64))
+                caplens.append(np.maximum(head[:n, 5].astype(np.int64) - view, 0).astype(np.uint32))
+                times.append(t)
+                links.append(np.full(n, link, np.uint16))
                 pos += n * length
                 look = look * 2 if n == k else 64
                 continue
@@ -82,20 +88,21 @@ class PcapNgBlocks:
                                  f"(offset {at}); convert with 'editcap -F pcap'")
             pos += length
         if not offsets:
-            return np.zeros(0, np.int64), np.zeros(0, np.uint32), np.zeros(0, np.float64), pos
-        return np.concatenate(offsets), np.concatenate(caplens), np.concatenate(times), pos
+            return np.zeros(0, np.int64), np.zeros(0, np.uint32), np.zeros(0, np.float64), None, pos
+        link = np.concatenate(links)
+        return (np.concatenate(offsets), np.concatenate(caplens), np.concatenate(times),
+                None if np.all(link == LINKTYPE_ETHERNET) else link, pos)
 
-    def _times(self, head: np.ndarray, at: int) -> np.ndarray:
-        """Capture times (s) of a run of packet blocks on one interface (their first 6 words)."""
+    def _times(self, head: np.ndarray, at: int) -> tuple[np.ndarray, int]:
+        """(capture times in s, link type) of a run of packet blocks on one interface (their
+        first 6 words)."""
         iface, length = int(head[0, 2]), int(head[0, 1])
         if iface >= len(self.interfaces) or np.any(32 + head[:, 5].astype(np.int64) > length):
             raise CivicError(f"{self.path}: corrupt pcapng: packet block at offset {at} or after it")
         link, units, shift = self.interfaces[iface]
-        if link != LINKTYPE_ETHERNET:
-            raise CivicError(f"{self.path}: link type {link} is not Ethernet (1)")
         stamp = head[:, 3].astype(np.uint64) << np.uint64(32) | head[:, 4].astype(np.uint64)
         whole, part = np.divmod(stamp, np.uint64(units))
-        return whole.astype(np.float64) + shift + part.astype(np.float64) / units
+        return whole.astype(np.float64) + shift + part.astype(np.float64) / units, link
 
     def _section(self, raw, pos: int, at: int) -> None:
         """A Section Header Block: its byte order; interfaces are numbered afresh."""

@@ -1,7 +1,8 @@
 """The plant's UDP control message (wire format v1) and fast pcap I/O.
 
 Captures (classic pcap, or pcapng via `civic.pcapng`) are read into numpy arrays in bulk: no
-per-packet Python object. `read_pcap` returns a `Capture` holding the file's bytes, each record's
+per-packet Python object. Frames are Ethernet, or Linux cooked captures (`tcpdump -i any`),
+which are viewed as Ethernet from 14 bytes before their IPv4 packet (`LINK_VIEW`). `read_pcap` returns a `Capture` holding the file's bytes, each record's
 offset and a structured array of decoded message fields; `Capture.write`
 writes it back byte-identical except for patched verdicts and checksums.
 `scapy_layer.PlantMessage` is the scapy twin, for crafting and dissecting.
@@ -45,6 +46,13 @@ PCAP_MAGICS = {  # magic as read little-endian -> (byte order, fraction per seco
 }
 PCAPNG_MAGIC = 0x0A0D0D0A
 LINKTYPE_ETHERNET = 1
+LINKTYPE_LINUX_SLL = 113        # tcpdump -i any: Linux cooked capture, a 16-byte header
+LINKTYPE_LINUX_SLL2 = 276       # its version 2 (libpcap 1.10 on), a 20-byte header
+# Each link type's shift from a frame's first byte to its Ethernet view: the 14 bytes before the
+# IPv4 packet, so that every offset of the parser holds. SLL's protocol field falls where an
+# Ethernet frame has its ethertype; SLL2 has it in its first 2 bytes (SLL2_ETHERTYPE, from the view).
+LINK_VIEW = {LINKTYPE_ETHERNET: 0, LINKTYPE_LINUX_SLL: 2, LINKTYPE_LINUX_SLL2: 6}
+SLL2_ETHERTYPE = -6
 PCAP_HEADER = struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 262144, LINKTYPE_ETHERNET)   # what civic writes
 
 MESSAGE_DTYPE = np.dtype([
@@ -97,16 +105,22 @@ class Capture:
     """
 
     data: bytearray                 # the whole file
-    offset: np.ndarray              # int64 start of each frame in `data`
-    caplen: np.ndarray              # uint32 captured length of each frame
+    offset: np.ndarray              # int64 start of each frame's Ethernet view in `data`
+    caplen: np.ndarray              # uint32 captured length of each frame's Ethernet view
     messages: np.ndarray            # MESSAGE_DTYPE, one row per record
     path: str = ""
+    link: np.ndarray | None = None  # uint16 link type of each frame; None: all Ethernet
 
     def __len__(self) -> int:
         return len(self.offset)
 
     def frame(self, i: int) -> bytes:
-        return bytes(self.data[self.offset[i]:self.offset[i] + self.caplen[i]])
+        """Frame i as an Ethernet frame: a cooked capture's view, its ethertype in place."""
+        out = bytes(self.data[self.offset[i]:self.offset[i] + self.caplen[i]])
+        if self.link is not None and self.link[i] == LINKTYPE_LINUX_SLL2 and len(out) >= ETH_LEN:
+            at = self.offset[i] + SLL2_ETHERTYPE
+            out = out[:12] + bytes(self.data[at:at + 2]) + out[ETH_LEN:]
+        return out
 
     def set_verdicts(self, verdict: np.ndarray) -> None:
         """Write verdicts into the plant messages, updating UDP checksums (RFC 1624)."""
@@ -211,8 +225,8 @@ def is_pcapng(head) -> bool:
     return len(head) >= 4 and struct.unpack_from("<I", head)[0] == PCAPNG_MAGIC
 
 
-def pcap_header(head: bytes, path: str) -> tuple[str, int]:
-    """(byte order, fraction per second) of a classic Ethernet pcap's file header; errors are one line."""
+def pcap_header(head: bytes, path: str) -> tuple[str, int, int]:
+    """(byte order, fraction per second, link type) of a classic pcap's file header; errors are one line."""
     if len(head) < 24:
         raise CivicError(f"{path}: not a pcap file (only {len(head)} bytes)")
     (magic,) = struct.unpack_from("<I", head)
@@ -220,9 +234,36 @@ def pcap_header(head: bytes, path: str) -> tuple[str, int]:
         raise CivicError(f"{path}: not a pcap file (magic 0x{magic:08x})")
     order, frac = PCAP_MAGICS[magic]
     linktype = struct.unpack_from(order + "I", head, 20)[0] & 0x0FFFFFFF
-    if linktype != LINKTYPE_ETHERNET:
-        raise CivicError(f"{path}: link type {linktype} is not Ethernet (1)")
-    return order, frac
+    link_view(linktype, path)
+    return order, frac, linktype
+
+
+def link_view(linktype: int, path: str) -> int:
+    """The shift from a frame's first byte to its Ethernet view (`LINK_VIEW`); a link type CIVIC
+    does not read is a one-line error."""
+    if linktype not in LINK_VIEW:
+        raise CivicError(f"{path}: link type {linktype} is neither Ethernet (1) nor a Linux cooked "
+                         f"capture (113, 276)")
+    return LINK_VIEW[linktype]
+
+
+def viewed(offset: np.ndarray, caplen: np.ndarray, shift) -> tuple[np.ndarray, np.ndarray]:
+    """(offsets, captured lengths) of frames' Ethernet views, `shift` bytes in (a scalar or per frame)."""
+    if np.all(shift == 0):
+        return offset, caplen
+    return offset + shift, np.maximum(caplen.astype(np.int64) - shift, 0).astype(np.uint32)
+
+
+def ethertypes(head: np.ndarray, buf: np.ndarray, offset: np.ndarray, link: np.ndarray | None) -> np.ndarray:
+    """Each frame's ethertype: in its Ethernet view, or in its SLL2 header (link: per frame, None
+    for an all-Ethernet capture)."""
+    sll2 = None if link is None else link == LINKTYPE_LINUX_SLL2
+    if sll2 is None or not sll2.any():
+        return head["ethertype"]
+    at = offset[sll2] + SLL2_ETHERTYPE
+    out = np.array(head["ethertype"], dtype=np.uint16)
+    out[sll2] = buf[at].astype(np.uint16) << 8 | buf[at + 1]
+    return out
 
 
 # the first FRAME_LEN bytes of a frame, as big-endian fields at their byte offsets
@@ -251,10 +292,12 @@ def frame_heads(buf: np.ndarray, offset: np.ndarray, caplen: np.ndarray) -> np.n
     return head.view(HEAD_DTYPE).reshape(n)
 
 
-def frame_kinds(head: np.ndarray, caplen: np.ndarray, udp_port: int,
-                plant_prefix: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(ipv4, udp, plant) masks of frames from their heads: the parser's checks (pipeline.md 1)."""
-    ipv4 = (caplen >= ETH_LEN + IPV4_LEN) & (head["ethertype"] == 0x0800) & (head["ver_ihl"] == 0x45)
+def frame_kinds(head: np.ndarray, caplen: np.ndarray, udp_port: int, plant_prefix: str,
+                ethertype: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ipv4, udp, plant) masks of frames from their heads: the parser's checks (pipeline.md 1).
+    `ethertype`: where it is not in the heads (`ethertypes`)."""
+    ethertype = head["ethertype"] if ethertype is None else ethertype
+    ipv4 = (caplen >= ETH_LEN + IPV4_LEN) & (ethertype == 0x0800) & (head["ver_ihl"] == 0x45)
     udp = ipv4 & (head["proto"] == 17) & ((head["flags_frag"] & 0x3FFF) == 0) & (caplen >= OFF_UDP + 8)
     net, plen = parse_prefix(plant_prefix)
     mask = (0xFFFFFFFF << (32 - plen)) & 0xFFFFFFFF
@@ -264,14 +307,16 @@ def frame_kinds(head: np.ndarray, caplen: np.ndarray, udp_port: int,
 
 
 def decode_frames(data, offset: np.ndarray, caplen: np.ndarray, udp_port: int = DEFAULT_UDP_PORT,
-                  plant_prefix: str = DEFAULT_PLANT_PREFIX) -> np.ndarray:
-    """Decode the plant-message fields of every frame (docs/pipeline.md section 1)."""
+                  plant_prefix: str = DEFAULT_PLANT_PREFIX, link: np.ndarray | None = None) -> np.ndarray:
+    """Decode the plant-message fields of every frame (docs/pipeline.md section 1); offset and
+    caplen are the frames' Ethernet views, link their link types (None: all Ethernet)."""
     n = len(offset)
     msg = np.zeros(n, dtype=MESSAGE_DTYPE)
     if n == 0:
         return msg
-    head = frame_heads(np.frombuffer(data, dtype=np.uint8), offset, caplen)
-    ipv4, udp, plant = frame_kinds(head, caplen, udp_port, plant_prefix)
+    buf = np.frombuffer(data, dtype=np.uint8)
+    head = frame_heads(buf, offset, caplen)
+    ipv4, udp, plant = frame_kinds(head, caplen, udp_port, plant_prefix, ethertypes(head, buf, offset, link))
     msg["plant"] = plant
     if plant.all():
         msg["src"], msg["dport"] = head["src"], head["dport"]
@@ -287,7 +332,7 @@ def decode_frames(data, offset: np.ndarray, caplen: np.ndarray, udp_port: int = 
 
 def read_pcap(path: str | Path, udp_port: int = DEFAULT_UDP_PORT,
               plant_prefix: str = DEFAULT_PLANT_PREFIX) -> Capture:
-    """Read a pcap or pcapng capture (Ethernet link type) into a Capture, without scapy."""
+    """Read a pcap or pcapng capture (Ethernet or Linux cooked) into a Capture, without scapy."""
     path = str(path)
     try:
         with open(path, "rb") as fh:
@@ -298,15 +343,16 @@ def read_pcap(path: str | Path, udp_port: int = DEFAULT_UDP_PORT,
     if is_pcapng(data):
         from civic.pcapng import PcapNgBlocks
 
-        offset, caplen, t, _ = PcapNgBlocks(path).walk(memoryview(data))
+        offset, caplen, t, link, _ = PcapNgBlocks(path).walk(memoryview(data))
     else:
-        order, frac = pcap_header(bytes(data[:24]), path)
+        order, frac, linktype = pcap_header(bytes(data[:24]), path)
         rec, caplen, _ = record_offsets(memoryview(data), order, 24, path)
-        offset = rec + 16
+        offset, caplen = viewed(rec + 16, caplen, LINK_VIEW[linktype])
         t = record_times(np.frombuffer(data, np.uint8), rec, order, frac)
-    messages = decode_frames(data, offset, caplen, udp_port, plant_prefix)
+        link = None if linktype == LINKTYPE_ETHERNET else np.full(len(rec), linktype, np.uint16)
+    messages = decode_frames(data, offset, caplen, udp_port, plant_prefix, link)
     messages["t"] = t
-    return Capture(data=data, offset=offset, caplen=caplen, messages=messages, path=path)
+    return Capture(data=data, offset=offset, caplen=caplen, messages=messages, path=path, link=link)
 
 
 def ipv4_checksum(headers: np.ndarray) -> np.ndarray:

@@ -1,12 +1,15 @@
 """Crafted frames for bad-input and pass-through tests (scapy, independent of civic.wire)."""
 from __future__ import annotations
 
+import struct
+
 import numpy as np
 
 from scapy.layers.inet import IP, UDP
 from scapy.layers.inet6 import IPv6
-from scapy.layers.l2 import ARP, Ether
+from scapy.layers.l2 import ARP, CookedLinux, CookedLinuxV2, Ether
 from scapy.packet import Raw
+from scapy.utils import rdpcap, wrpcap
 
 from civic.scapy_layer import PlantMessage
 from civic.wire import SIGNALS, build_frames, read_pcap, write_pcap
@@ -128,3 +131,58 @@ def changing_fleet(path, plants: int = 8, gap_s: float = 20.0):
     order = np.argsort(np.asarray(times), kind="stable")
     write_pcap(path, 1_767_225_600 + np.asarray(times)[order], [bytes(frames[i]) for i in order])
     return path
+
+
+def cooked(src, dst, version: int = 1) -> None:
+    """An Ethernet capture as `tcpdump -i any` writes it: Linux cooked (SLL, or SLL2 for version 2)
+    headers carrying the same payloads at the same times (scapy, independent of civic)."""
+    out = []
+    for pkt in rdpcap(str(src)):
+        header = (CookedLinux(pkttype=4, lladdrtype=1, lladdrlen=6, src=pkt[Ether].src, proto=pkt[Ether].type)
+                  if version == 1 else
+                  CookedLinuxV2(proto=pkt[Ether].type, ifindex=3, lladdrtype=1, pkttype=4, lladdrlen=6,
+                                src=pkt[Ether].src))
+        c = header / pkt[Ether].payload
+        c.time = pkt.time
+        out.append(c)
+    wrpcap(str(dst), out)
+
+
+# pcapng by hand, block by block (tests of what scapy's writer cannot make: byte orders, clocks,
+# several interfaces)
+def block(order: str, kind: int, body: bytes) -> bytes:
+    """One pcapng block: type, total length, body padded to 32 bits, total length again."""
+    body += b"\0" * (-len(body) % 4)
+    n = 12 + len(body)
+    return struct.pack(order + "II", kind, n) + body + struct.pack(order + "I", n)
+
+
+def section(order: str) -> bytes:
+    return block(order, 0x0A0D0D0A, struct.pack(order + "IHHq", 0x1A2B3C4D, 1, 0, -1))
+
+
+def interface(order: str, link: int = 1, options: bytes = b"") -> bytes:
+    return block(order, 1, struct.pack(order + "HHI", link, 0, 262144) + options)
+
+
+def option(order: str, code: int, value: bytes) -> bytes:
+    return struct.pack(order + "HH", code, len(value)) + value + b"\0" * (-len(value) % 4)
+
+
+def packet(order: str, iface: int, stamp: int, frame: bytes) -> bytes:
+    return block(order, 6, struct.pack(order + "IIIII", iface, stamp >> 32, stamp & 0xFFFFFFFF, len(frame),
+                                       len(frame)) + frame)
+
+
+def mixed_pcapng(src, dst) -> None:
+    """An Ethernet capture's frames alternately on an Ethernet and a Linux cooked (SLL2) interface
+    of one pcapng, microsecond stamps."""
+    ng = section("<") + interface("<", 1) + interface("<", 276)
+    for i, pkt in enumerate(rdpcap(str(src))):
+        stamp = round(float(pkt.time) * 1e6)
+        frame = bytes(pkt) if i % 2 == 0 else bytes(
+            CookedLinuxV2(proto=pkt[Ether].type, ifindex=3, lladdrtype=1, pkttype=4, lladdrlen=6,
+                          src=pkt[Ether].src) / pkt[Ether].payload)
+        ng += packet("<", i % 2, stamp, frame)
+    with open(dst, "wb") as fh:
+        fh.write(ng)

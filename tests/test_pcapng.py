@@ -13,34 +13,10 @@ from civic.pcap_chunks import PcapChunks
 from civic.pcapng import PcapNgBlocks
 from civic.wire import SIGNALS, read_pcap
 from data import TRAINING
-from frames import junk_frames, plant
+from frames import block, interface, junk_frames, option, packet, plant, section
 
 RECORDING = TRAINING / "fill_warning_r3.pcap"
 FIELDS = ("plant", "src", "dport", "udp_csum", "seq", *SIGNALS, "verdict")
-
-
-def block(order: str, kind: int, body: bytes) -> bytes:
-    """One pcapng block: type, total length, body padded to 32 bits, total length again."""
-    body += b"\0" * (-len(body) % 4)
-    n = 12 + len(body)
-    return struct.pack(order + "II", kind, n) + body + struct.pack(order + "I", n)
-
-
-def section(order: str) -> bytes:
-    return block(order, 0x0A0D0D0A, struct.pack(order + "IHHq", 0x1A2B3C4D, 1, 0, -1))
-
-
-def interface(order: str, link: int = 1, options: bytes = b"") -> bytes:
-    return block(order, 1, struct.pack(order + "HHI", link, 0, 262144) + options)
-
-
-def option(order: str, code: int, value: bytes) -> bytes:
-    return struct.pack(order + "HH", code, len(value)) + value + b"\0" * (-len(value) % 4)
-
-
-def packet(order: str, iface: int, stamp: int, frame: bytes) -> bytes:
-    return block(order, 6, struct.pack(order + "IIIII", iface, stamp >> 32, stamp & 0xFFFFFFFF, len(frame),
-                                       len(frame)) + frame)
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +87,7 @@ def test_every_chunk_boundary_walks_as_the_whole_file():
         walker, pending, base, offsets, times = PcapNgBlocks("two.pcapng"), b"", 0, [], []
         for i in range(0, len(data), n):
             buf = pending + data[i:i + n]
-            offset, _, t, end = walker.walk(memoryview(buf), i + n >= len(data), base)
+            offset, _, t, _, end = walker.walk(memoryview(buf), i + n >= len(data), base)
             offsets.append(offset + base)
             times.append(t)
             pending, base = buf[end:], base + end
@@ -141,7 +117,7 @@ FRAME = bytes(plant())
     (struct.pack("<III", 6, 10, 0), "corrupt pcapng"),                       # a block 10 bytes long
     (struct.pack("<IIII", 6, 16, 0, 16), "corrupt pcapng"),                  # a packet block with no room
     (packet("<", 5, 0, FRAME), "corrupt pcapng"),                            # on no interface 5
-    (section("<") + interface("<", link=101) + packet("<", 0, 0, FRAME), "not Ethernet"),
+    (section("<") + interface("<", link=101) + packet("<", 0, 0, FRAME), "neither Ethernet"),
     (block("<", 3, struct.pack("<I", len(FRAME)) + FRAME), "Simple Packet"),  # no capture time
     (block("<", 0x0A0D0D0A, struct.pack("<IHHq", 0, 1, 0, -1)), "byte-order magic"),
     (section("<") + interface("<", options=option("<", 9, b"\x14")) + packet("<", 0, 0, FRAME), "time resolution"),

@@ -101,7 +101,7 @@ def test_udp_checksum_matches_scapy():
     (lambda b: b[:24 + 10], "truncated pcap"),
     (lambda b: b"\x0a\x0d\x0d\x0a" + b[4:], "corrupt pcapng"),   # a pcap relabelled pcapng
     (lambda b: b"\x00\x01\x02\x03" + b[4:], "not a pcap"),
-    (lambda b: b[:20] + struct.pack("<I", 101) + b[24:], "not Ethernet"),
+    (lambda b: b[:20] + struct.pack("<I", 101) + b[24:], "neither Ethernet"),
     (lambda b: b[:24 + 8] + struct.pack("<I", 10_000_000) + b[36:], "corrupt pcap"),
     (lambda b: b[:10], "not a pcap"),
 ])

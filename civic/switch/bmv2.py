@@ -56,7 +56,7 @@ from civic.switch.desired import desired_state
 from civic.switch.digests import digest_members, enable_digest
 from civic.switch.pipeline import PIPELINE_JSON, PIPELINE_P4INFO, load_pipeline
 from civic.switch.schema import DIGEST_VERDICT_CHANGE
-from civic.wire import Capture, decode_frames, read_pcap, write_pcap
+from civic.wire import ETH_LEN, LINKTYPE_ETHERNET, Capture, decode_frames, read_pcap, write_pcap
 
 SWITCH_BINARY = "simple_switch_grpc"
 GRPC_PORT = 9559
@@ -465,17 +465,21 @@ def output_capture(capture: Capture, frames: list, udp_port: int, plant_prefix: 
     """The forwarded frames as a Capture with the input frames' timestamps (missing ones left out).
 
     When every frame came out with its input's length (the normal case) this is a copy of the
-    input capture with the frames patched in place, so the pcap headers stay byte-identical.
+    input capture with the frames patched in place, so the pcap headers stay byte-identical (and
+    a Linux cooked capture's link headers). Otherwise the frames that came out are written as an
+    Ethernet pcap: a cooked frame as the switch saw it.
     """
     if len(frames) != len(capture):
         raise CivicError(f"{len(frames)} output frames for {len(capture)} input frames")
     if all(f is not None and len(f) == int(capture.caplen[i]) for i, f in enumerate(frames)):
         out = copy.deepcopy(capture)
         for i, f in enumerate(frames):
+            # a cooked capture's link header stays as captured: the switch saw its Ethernet view
+            skip = 0 if out.link is None or out.link[i] == LINKTYPE_ETHERNET else ETH_LEN
             o = int(out.offset[i])
-            out.data[o:o + len(f)] = f
+            out.data[o + skip:o + len(f)] = f[skip:]
         t = out.messages["t"].copy()
-        out.messages = decode_frames(out.data, out.offset, out.caplen, udp_port, plant_prefix)
+        out.messages = decode_frames(out.data, out.offset, out.caplen, udp_port, plant_prefix, out.link)
         out.messages["t"] = t
         return out
     keep = [i for i, f in enumerate(frames) if f is not None]

@@ -227,7 +227,7 @@ def civic_cli(*argv, check=True) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def bmv2_inputs(tmp_path_factory, trained_entries):
     """Entries and every capture the switch must get right: recordings, edge cases, two 64-plant fleets."""
-    from frames import changing_fleet, edge_frames, junk_frames, plant, sequence_edges
+    from frames import changing_fleet, cooked, edge_frames, junk_frames, mixed_pcapng, plant, sequence_edges
 
     from civic.wire import write_pcap
 
@@ -243,13 +243,17 @@ def bmv2_inputs(tmp_path_factory, trained_entries):
     civic_cli("simulate", "drain", "--plants", "64", "--seed", "100", "-o", d / "fleet_drain.pcap")
     civic_cli("simulate", "fill", "--plants", "64", "--seed", "200", "-o", d / "fleet_fill.pcap")
     changing_fleet(d / "fleet_changing.pcap", plants=12)
+    # Linux cooked captures (tcpdump -i any): the switch gets their Ethernet views
+    cooked(ROOT / "traces" / "training" / "fill_error_r1.pcap", d / "cooked_sll.pcap", 1)
+    mixed_pcapng(d / "edges.pcap", d / "edges_mixed_sll2.pcapng")
     # 64 plants in closed-loop operation, faults switched on mid-run (fault-free, VM1 and VM2 in turn)
     civic_cli("simulate", "closed-loop", "--controller", "pi", "--plants", "64", "--duration", "100",
               "--onset", "30", "--seed", "300", "-o", d / "fleet_closed_loop.pcap")
     caps = sorted((ROOT / "traces" / "training").glob("*.pcap")) + sorted(
         (ROOT / "traces" / "continuous").glob("*.pcap")) + [d / "fleet_closed_loop.pcap", d / "edges.pcap",
                                                              d / "fleet_drain.pcap", d / "fleet_fill.pcap",
-                                                             d / "fleet_changing.pcap"]
+                                                             d / "fleet_changing.pcap", d / "cooked_sll.pcap",
+                                                             d / "edges_mixed_sll2.pcapng"]
     return d / "entries.json", caps
 
 
@@ -275,10 +279,16 @@ def test_bmv2_output_is_byte_identical_to_model(tmp_path, bmv2_inputs, v1model_b
             pytest.fail(f"{cap.name}: BMv2 differs from the model first at frame {first} "
                         f"({len(a)} model frames, {len(b)} BMv2 frames)")
     # the crafted cases really exercise the switch: verdicts given, and junk left alone
-    inp, out = read_pcap(caps[-4]), read_pcap(tmp_path / "bmv2" / "edges.pcap")
+    inp, out = read_pcap(next(c for c in caps if c.name == "edges.pcap")), read_pcap(tmp_path / "bmv2" / "edges.pcap")
     assert np.count_nonzero(out.messages["verdict"]) > 20
     changed = [i for i in range(len(inp)) if inp.frame(i) != out.frame(i)]
     assert all(out.messages["plant"][i] for i in changed)
+    # cooked captures keep their link headers and get the verdicts of their Ethernet frames
+    mixed = read_pcap(tmp_path / "bmv2" / "edges_mixed_sll2.pcapng")
+    assert set(mixed.link.tolist()) == {1, 276}
+    assert all(np.array_equal(mixed.messages[k], out.messages[k]) for k in ("plant", "verdict", "udp_csum"))
+    sll = read_pcap(tmp_path / "bmv2" / "cooked_sll.pcap")
+    assert set(sll.link.tolist()) == {113} and np.count_nonzero(sll.messages["verdict"]) > 100
     fleet = read_pcap(tmp_path / "bmv2" / "fleet_drain.pcap").messages
     assert len(np.unique(fleet["src"][fleet["verdict"] > 0])) == 64
     # the balance monitors gave verdicts on every closed-loop plant, and warnings/errors on some

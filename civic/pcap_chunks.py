@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
-from civic.pcapng import PcapNgBlocks
+from civic.pcapng import PCAPNG_HEAD, PcapNgBlocks, packet_blocks
 from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, LINK_VIEW, LINKTYPE_ETHERNET, PCAP_HEADER,
                         ethertypes, frame_heads, frame_kinds, is_pcapng, pcap_header, record_offsets, record_times,
                         viewed)
@@ -127,17 +127,23 @@ class PcapChunks:
 
 
 class PcapWriter:
-    """A microsecond pcap written as frames arrive (the file header first)."""
+    """A microsecond pcap written as frames arrive (the file header first); pcapng where the path
+    ends in .pcapng."""
 
     def __init__(self, path: str | Path):
         try:
             self.fh = open(path, "wb")
         except OSError as exc:
             raise CivicError(f"cannot write {path}: {exc.strerror}") from exc
-        self.fh.write(PCAP_HEADER)
+        self.ng = str(path).endswith(".pcapng")
+        self.fh.write(PCAPNG_HEAD if self.ng else PCAP_HEADER)
 
     def write(self, times, frames, lengths=None) -> None:
         """Append frames (bytes-likes) captured at times (s); lengths: their lengths on the wire."""
+        if self.ng:
+            self.fh.write(packet_blocks(times, list(frames), lengths))
+            self.fh.flush()
+            return
         out = bytearray()
         for k, (t, frame) in enumerate(zip(times, frames)):
             us = round(float(t) * 1e6)

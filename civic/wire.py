@@ -422,7 +422,13 @@ def build_frames(fields: dict, src_ip="10.0.0.1", dst_ip="10.0.0.2", sport=50001
 
 
 def write_pcap(path: str | Path, t: np.ndarray, frames) -> None:
-    """Write frames (an (n, k) uint8 array or a list of bytes) with times t (s) as a microsecond pcap."""
+    """Write frames (an (n, k) uint8 array or a list of bytes) with times t (s) as a microsecond pcap,
+    or as pcapng where the path ends in .pcapng."""
+    if str(path).endswith(".pcapng"):
+        from civic.pcapng import write_pcapng
+
+        write_pcapng(path, t, frames)
+        return
     t = np.asarray(t, dtype=np.float64)
     us = np.round(t * 1e6).astype(np.int64)
     sec, frac = us // 1_000_000, us % 1_000_000

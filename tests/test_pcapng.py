@@ -9,7 +9,7 @@ from scapy.utils import PcapNgWriter, rdpcap
 
 from civic.cli import main
 from civic.errors import CivicError
-from civic.pcap_chunks import PcapChunks
+from civic.pcap_chunks import PcapChunks, PcapWriter
 from civic.pcapng import PcapNgBlocks
 from civic.wire import SIGNALS, read_pcap
 from data import TRAINING
@@ -107,6 +107,28 @@ def test_replay_writes_pcapng_back_with_the_verdicts_of_its_pcap(as_pcapng, tmp_
         assert np.array_equal(ng.messages[name], classic.messages[name]), name
     # scapy reads our output: the blocks stayed well formed
     assert len(rdpcap(str(tmp_path / "out.pcapng"))) == len(ng)
+
+
+def test_what_civic_writes_as_pcap_it_writes_as_pcapng_where_asked(tmp_path):
+    """simulate -o and the writers under it: the same frames and times, read back by us and by scapy;
+    frames of one size (one array of blocks) and of several sizes (block by block), lengths on the wire."""
+    for out in ("sim.pcap", "sim.pcapng"):
+        assert main(["simulate", "drain", "--plants", "3", "--seed", "7", "-o", str(tmp_path / out)]) == 0
+    classic, ng = read_pcap(tmp_path / "sim.pcap"), read_pcap(tmp_path / "sim.pcapng")
+    assert (tmp_path / "sim.pcapng").read_bytes()[:4] == b"\x0a\x0d\x0d\x0a" and len(ng) > 500
+    for name in ("t", *FIELDS):
+        assert np.array_equal(ng.messages[name], classic.messages[name]), name
+    frames = [bytes(plant(seq=i)) for i in range(3)] + junk_frames()
+    t = 1767225600.0 + np.arange(len(frames)) * 0.25 + 1e-6
+    writer = PcapWriter(tmp_path / "live.pcapng")                 # civic monitor --write OUT.pcapng
+    writer.write(t[:4], frames[:4], [len(f) + 100 for f in frames[:4]])
+    writer.write(t[4:], frames[4:])
+    writer.close()
+    read = rdpcap(str(tmp_path / "live.pcapng"))
+    assert [bytes(p) for p in read] == frames
+    assert [round(float(p.time), 6) for p in read] == [round(x, 6) for x in t]
+    assert [p.wirelen for p in read[:4]] == [len(f) + 100 for f in frames[:4]]
+    assert [read_pcap(tmp_path / "live.pcapng").frame(i) for i in range(len(frames))] == frames
 
 
 FRAME = bytes(plant())

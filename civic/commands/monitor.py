@@ -18,7 +18,8 @@ def register(sub) -> None:
     p.add_argument("--events", metavar="FILE", help="append every verdict change as a JSON line")
     p.add_argument("--metrics-port", type=int, metavar="N", help="serve Prometheus metrics on port N")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
-    p.add_argument("--write", metavar="OUT.pcap", help="write every captured frame, verdicts written in")
+    p.add_argument("--write", metavar="OUT.pcap",
+                   help="write every captured frame, verdicts written in (pcapng if OUT ends in .pcapng)")
     p.add_argument("--plot", metavar="PNG", help="at the end, the plants' class timeline")
     add_opcua_args(p)
     p.set_defaults(func=run)

@@ -34,7 +34,7 @@ def register(sub) -> None:
                    help="N plants in one capture, gateways SRC_IP, SRC_IP+1, ..., messages interleaved; "
                         "plant k uses seed SEED+k, and drain/fill without --fault cycle the classes "
                         "normal, warning, error over the plants (default 1)")
-    p.add_argument("-o", "--output", metavar="OUT.pcap|OUT.csv")
+    p.add_argument("-o", "--output", metavar="OUT.pcap|OUT.pcapng|OUT.csv")
     p.add_argument("--plot", metavar="OUT.png")
     p.add_argument("--labels", metavar="LABELS.csv",
                    help="append labels rows (drain/fill: one per run; closed loop with --onset: one per run and "
@@ -77,7 +77,7 @@ def run(args) -> int:
     if not args.scenario:
         raise CivicError("give a SCENARIO (drain, fill, closed-loop) or --inputs/--like")
     if not args.output:
-        raise CivicError("-o OUT.pcap|OUT.csv is required")
+        raise CivicError("-o OUT.pcap|OUT.pcapng|OUT.csv is required")
     _check_output(args.output)
     if args.plants != 1:
         return _fleet(args, model)
@@ -146,8 +146,8 @@ def _fleet(args, model) -> int:
     if not 1 <= n <= 256 or (first & 0xFF) + n > 256:
         raise CivicError(f"--plants {n} from {args.src_ip}: the gateways must share the /24 (at most "
                          f"{256 - (first & 0xFF)} plants)")
-    if not args.output.endswith(".pcap"):
-        raise CivicError("--plants writes one capture: the output must end in .pcap")
+    if not args.output.endswith((".pcap", ".pcapng")):
+        raise CivicError("--plants writes one capture: the output must end in .pcap or .pcapng")
     if args.plot:
         raise CivicError("--plot shows one plant: leave out --plants")
     if args.duration is not None and not args.duration > 0:
@@ -218,8 +218,8 @@ def closed_loop_labels(file: str, faults: dict, onset: float, seed, src_ip: str)
 
 
 def _check_output(path: str) -> None:
-    if not (path.endswith(".pcap") or path.endswith(".csv")):
-        raise CivicError(f"{path}: output must end in .pcap or .csv")
+    if not path.endswith((".pcap", ".pcapng", ".csv")):
+        raise CivicError(f"{path}: output must end in .pcap, .pcapng or .csv")
     parent = Path(path).parent
     if not parent.is_dir():
         raise CivicError(f"{path}: folder {parent} does not exist")

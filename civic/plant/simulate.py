@@ -842,11 +842,11 @@ EPOCH = 1767225600.0          # 2026-01-01T00:00:00Z, as in the recorded cases
 
 
 def write_recording(path: str, model: PlantModel, t, signals: dict, src_ip: str = "10.0.0.1", seed=None) -> None:
-    """A simulated run as a pcap in the wire format (random first seq from seed) or a CSV."""
+    """A simulated run as a pcap or pcapng in the wire format (random first seq from seed) or a CSV."""
     fields = to_wire(model, signals)
     has_wire = all(c in fields for c in WIRE_COLUMNS)
     try:
-        if str(path).endswith(".pcap"):
+        if str(path).endswith((".pcap", ".pcapng")):
             if not has_wire:
                 raise CivicError(f"model {model.name} does not map to the plant message (l1..v2); write a .csv")
             from civic.wire import build_frames, write_pcap

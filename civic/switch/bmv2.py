@@ -56,7 +56,7 @@ from civic.switch.desired import desired_state
 from civic.switch.digests import digest_members, enable_digest
 from civic.switch.pipeline import PIPELINE_JSON, PIPELINE_P4INFO, load_pipeline
 from civic.switch.schema import DIGEST_VERDICT_CHANGE
-from civic.wire import ETH_LEN, LINKTYPE_ETHERNET, Capture, decode_frames, read_pcap, write_pcap
+from civic.wire import ETH_LEN, LINKTYPE_ETHERNET, Capture, decode_frames, is_pcapng, read_pcap, write_pcap
 
 SWITCH_BINARY = "simple_switch_grpc"
 GRPC_PORT = 9559
@@ -466,8 +466,8 @@ def output_capture(capture: Capture, frames: list, udp_port: int, plant_prefix: 
 
     When every frame came out with its input's length (the normal case) this is a copy of the
     input capture with the frames patched in place, so the pcap headers stay byte-identical (and
-    a Linux cooked capture's link headers). Otherwise the frames that came out are written as an
-    Ethernet pcap: a cooked frame as the switch saw it.
+    a Linux cooked capture's link headers). Otherwise the frames that came out are written anew,
+    pcap or pcapng as the input, of Ethernet frames: a cooked frame as the switch saw it.
     """
     if len(frames) != len(capture):
         raise CivicError(f"{len(frames)} output frames for {len(capture)} input frames")
@@ -484,7 +484,7 @@ def output_capture(capture: Capture, frames: list, udp_port: int, plant_prefix: 
         return out
     keep = [i for i, f in enumerate(frames) if f is not None]
     with tempfile.TemporaryDirectory(prefix="civic-bmv2-out-") as tmp:
-        path = Path(tmp) / "out.pcap"
+        path = Path(tmp) / ("out.pcapng" if is_pcapng(capture.data[:4]) else "out.pcap")     # the input's format
         write_pcap(path, capture.messages["t"][keep], [frames[i] for i in keep])
         out = read_pcap(path, udp_port, plant_prefix)
     out.path = capture.path

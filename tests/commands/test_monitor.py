@@ -36,7 +36,8 @@ def without_t(path):
     return [{k: v for k, v in json.loads(line).items() if k != "t"} for line in open(path)]
 
 
-def test_live_frames_give_the_verdicts_and_events_of_replay(trained_entries, tmp_path):
+@pytest.mark.parametrize("written", ["live.pcap", "live.pcapng"])
+def test_live_frames_give_the_verdicts_and_events_of_replay(trained_entries, tmp_path, written):
     entries = tmp_path / "entries.json"
     trained_entries.save(entries)
     rec = interleave([TRAINING / "drain_v075_error_r3.pcap", TRAINING / "drain_v075_normal_r1.pcap",
@@ -45,7 +46,7 @@ def test_live_frames_give_the_verdicts_and_events_of_replay(trained_entries, tmp
     replayed, want = tmp_path / "replayed.pcap", tmp_path / "want.jsonl"
     subprocess.run([sys.executable, "-m", "civic", "replay", str(rec), "-o", str(replayed), "--entries",
                     str(entries), "--events", str(want)], check=True, capture_output=True)
-    live, got = tmp_path / "live.pcap", tmp_path / "got.jsonl"
+    live, got = tmp_path / written, tmp_path / "got.jsonl"
     with veth.VethPair() as pair:
         proc = start(pair, "--entries", str(entries), "--events", str(got), "--write", str(live), "--duration", "6")
         pair.send(rec, rate=20000)
@@ -54,6 +55,7 @@ def test_live_frames_give_the_verdicts_and_events_of_replay(trained_entries, tmp
     assert without_t(got) == without_t(want) and len(without_t(want)) > 5
     src, out, ref = read_pcap(rec), read_pcap(live), read_pcap(replayed)
     assert len(out) == len(src), err
+    assert live.read_bytes()[:4] == (b"\x0a\x0d\x0d\x0a" if written.endswith("ng") else b"\xd4\xc3\xb2\xa1")
     assert [out.frame(i) for i in range(len(out))] == [ref.frame(i) for i in range(len(ref))]
     assert sum(src.frame(i) != ref.frame(i) for i in range(len(src))) > 0      # verdicts were written
 

@@ -160,9 +160,9 @@ def test_plumbing_order_missing_and_cleanup(stand_in, tmp_path, made):
     frames.append(bytes(plant(seq=99)) + b"\xee" * 7)              # trailer bytes survive
     frames.append(b"\xee" + frames[1][1:])                          # the stand-in corrupts this one
     write_pcap(tmp_path / "a.pcap", np.arange(len(frames)) * 0.1, frames)
-    write_pcap(tmp_path / "b.pcap", np.arange(5) * 0.1,                  # + no Ethernet header, jumbo frame
+    write_pcap(tmp_path / "b.pcapng", np.arange(5) * 0.1,                # + no Ethernet header, jumbo frame
                frames[:3] + [b"\x02" * 10, frames[2] + b"\x00" * 30000])
-    caps = [read_pcap(tmp_path / "a.pcap"), read_pcap(tmp_path / "b.pcap")]
+    caps = [read_pcap(tmp_path / "a.pcap"), read_pcap(tmp_path / "b.pcapng")]
 
     t0 = time.monotonic()
     out = replay_bmv2(caps, entries_json(tmp_path), build, frame_timeout=0.3, startup_timeout=15)
@@ -183,6 +183,8 @@ def test_plumbing_order_missing_and_cleanup(stand_in, tmp_path, made):
     assert len(a) == len(caps[0]) - 1 and a.frame(len(a) - 2).endswith(b"\xee" * 7)
     assert np.array_equal(a.messages["t"], np.delete(caps[0].messages["t"], 5))
     assert np.array_equal(a.messages["verdict"][:5], np.full(5, 0x5A))
+    b = out[1].capture                                              # rebuilt without the lost frame, as pcapng
+    assert bytes(b.data[:4]) == b"\x0a\x0d\x0d\x0a" and len(b) == 4 and b.frame(3) == out[1].frames[4]
     # nothing left behind
     assert len(made) == 1 and left_behind(made) == []
     pids = [int(p) for p in pidfile.read_text().split()]

@@ -19,9 +19,9 @@ import numpy as np
 
 from civic.errors import CivicError
 from civic.pcapng import PCAPNG_HEAD, PcapNgBlocks, packet_blocks
-from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, LINK_VIEW, LINKTYPE_ETHERNET, PCAP_HEADER,
-                        ethertypes, frame_heads, frame_kinds, is_pcapng, pcap_header, record_offsets, record_times,
-                        viewed)
+from civic.links import LINK_VIEW, LINKTYPE_ETHERNET, ethertypes, viewed
+from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, PCAP_HEADER, frame_heads, frame_kinds, is_pcapng,
+                        pcap_header, record_offsets, record_times)
 
 CHUNK_BYTES = 1 << 20          # file bytes read per chunk (13 k plant-message records: fits the caches)
 RECORD_HEADER = 16

@@ -21,8 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
-from civic.wire import LINKTYPE_ETHERNET, PCAPNG_MAGIC, link_view
+from civic.links import LINKTYPE_ETHERNET, link_view, viewed
 
+PCAPNG_MAGIC = 0x0A0D0D0A             # a Section Header Block's type: the file's first 4 bytes
 BYTE_ORDER_MAGIC = 0x1A2B3C4D         # as read little-endian; 0x4D3C2B1A: the section is big-endian
 IDB, EPB = 0x00000001, 0x00000006       # interface description, enhanced packet
 UNSUPPORTED = {0x00000002: "obsolete Packet", 0x00000003: "Simple Packet (no capture time)"}
@@ -77,9 +78,10 @@ class PcapNgBlocks:
                 same = (head[:, 0] == EPB) & (head[:, 1] == length) & (head[:, 2] == head[0, 2])
                 n = int(np.argmin(same)) if not same.all() else k
                 t, link = self._times(head[:n], at)
-                view = link_view(link, self.path)
-                offsets.append(pos + 28 + view + length * np.arange(n, dtype=np.int64))
-                caplens.append(np.maximum(head[:n, 5].astype(np.int64) - view, 0).astype(np.uint32))
+                offset, caplen = viewed(pos + 28 + length * np.arange(n, dtype=np.int64),
+                                        head[:n, 5].astype(np.uint32), link_view(link, self.path))
+                offsets.append(offset)
+                caplens.append(caplen)
                 times.append(t)
                 links.append(np.full(n, link, np.uint16))
                 pos += n * length

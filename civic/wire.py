@@ -2,7 +2,7 @@
 
 Captures (classic pcap, or pcapng via `civic.pcapng`) are read into numpy arrays in bulk: no
 per-packet Python object. Frames are Ethernet, or Linux cooked captures (`tcpdump -i any`),
-which are viewed as Ethernet from 14 bytes before their IPv4 packet (`LINK_VIEW`). `read_pcap` returns a `Capture` holding the file's bytes, each record's
+which are viewed as Ethernet from 14 bytes before their IPv4 packet (`civic.links`). `read_pcap` returns a `Capture` holding the file's bytes, each record's
 offset and a structured array of decoded message fields; `Capture.write`
 writes it back byte-identical except for patched verdicts and checksums.
 `scapy_layer.PlantMessage` is the scapy twin, for crafting and dissecting.
@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
+from civic.links import LINK_VIEW, LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL2, SLL2_ETHERTYPE, ethertypes, link_view, viewed
+from civic.pcapng import PCAPNG_MAGIC, PcapNgBlocks, write_pcapng
 
 DEFAULT_UDP_PORT = 50000
 DEFAULT_PLANT_PREFIX = "10.0.0.0/24"
@@ -44,15 +46,6 @@ PCAP_MAGICS = {  # magic as read little-endian -> (byte order, fraction per seco
     0xD4C3B2A1: (">", 1_000_000),
     0x4D3CB2A1: (">", 1_000_000_000),
 }
-PCAPNG_MAGIC = 0x0A0D0D0A
-LINKTYPE_ETHERNET = 1
-LINKTYPE_LINUX_SLL = 113        # tcpdump -i any: Linux cooked capture, a 16-byte header
-LINKTYPE_LINUX_SLL2 = 276       # its version 2 (libpcap 1.10 on), a 20-byte header
-# Each link type's shift from a frame's first byte to its Ethernet view: the 14 bytes before the
-# IPv4 packet, so that every offset of the parser holds. SLL's protocol field falls where an
-# Ethernet frame has its ethertype; SLL2 has it in its first 2 bytes (SLL2_ETHERTYPE, from the view).
-LINK_VIEW = {LINKTYPE_ETHERNET: 0, LINKTYPE_LINUX_SLL: 2, LINKTYPE_LINUX_SLL2: 6}
-SLL2_ETHERTYPE = -6
 PCAP_HEADER = struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 262144, LINKTYPE_ETHERNET)   # what civic writes
 
 MESSAGE_DTYPE = np.dtype([
@@ -238,34 +231,6 @@ def pcap_header(head: bytes, path: str) -> tuple[str, int, int]:
     return order, frac, linktype
 
 
-def link_view(linktype: int, path: str) -> int:
-    """The shift from a frame's first byte to its Ethernet view (`LINK_VIEW`); a link type CIVIC
-    does not read is a one-line error."""
-    if linktype not in LINK_VIEW:
-        raise CivicError(f"{path}: link type {linktype} is neither Ethernet (1) nor a Linux cooked "
-                         f"capture (113, 276)")
-    return LINK_VIEW[linktype]
-
-
-def viewed(offset: np.ndarray, caplen: np.ndarray, shift) -> tuple[np.ndarray, np.ndarray]:
-    """(offsets, captured lengths) of frames' Ethernet views, `shift` bytes in (a scalar or per frame)."""
-    if np.all(shift == 0):
-        return offset, caplen
-    return offset + shift, np.maximum(caplen.astype(np.int64) - shift, 0).astype(np.uint32)
-
-
-def ethertypes(head: np.ndarray, buf: np.ndarray, offset: np.ndarray, link: np.ndarray | None) -> np.ndarray:
-    """Each frame's ethertype: in its Ethernet view, or in its SLL2 header (link: per frame, None
-    for an all-Ethernet capture)."""
-    sll2 = None if link is None else link == LINKTYPE_LINUX_SLL2
-    if sll2 is None or not sll2.any():
-        return head["ethertype"]
-    at = offset[sll2] + SLL2_ETHERTYPE
-    out = np.array(head["ethertype"], dtype=np.uint16)
-    out[sll2] = buf[at].astype(np.uint16) << 8 | buf[at + 1]
-    return out
-
-
 # the first FRAME_LEN bytes of a frame, as big-endian fields at their byte offsets
 HEAD_DTYPE = np.dtype({
     "names": ["ethertype", "ver_ihl", "flags_frag", "proto", "src", "dport", "udp_len", "udp_csum",
@@ -341,8 +306,6 @@ def read_pcap(path: str | Path, udp_port: int = DEFAULT_UDP_PORT,
     except OSError as exc:
         raise CivicError(f"cannot read {path}: {exc.strerror}") from exc
     if is_pcapng(data):
-        from civic.pcapng import PcapNgBlocks
-
         offset, caplen, t, link, _ = PcapNgBlocks(path).walk(memoryview(data))
     else:
         order, frac, linktype = pcap_header(bytes(data[:24]), path)
@@ -425,8 +388,6 @@ def write_pcap(path: str | Path, t: np.ndarray, frames) -> None:
     """Write frames (an (n, k) uint8 array or a list of bytes) with times t (s) as a microsecond pcap,
     or as pcapng where the path ends in .pcapng."""
     if str(path).endswith(".pcapng"):
-        from civic.pcapng import write_pcapng
-
         write_pcapng(path, t, frames)
         return
     t = np.asarray(t, dtype=np.float64)

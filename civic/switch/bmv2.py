@@ -56,7 +56,8 @@ from civic.switch.desired import desired_state
 from civic.switch.digests import digest_members, enable_digest
 from civic.switch.pipeline import PIPELINE_JSON, PIPELINE_P4INFO, load_pipeline
 from civic.switch.schema import DIGEST_VERDICT_CHANGE
-from civic.wire import ETH_LEN, LINKTYPE_ETHERNET, Capture, decode_frames, is_pcapng, read_pcap, write_pcap
+from civic.links import LINKTYPE_ETHERNET
+from civic.wire import ETH_LEN, Capture, decode_frames, is_pcapng, read_pcap, write_pcap
 
 SWITCH_BINARY = "simple_switch_grpc"
 GRPC_PORT = 9559

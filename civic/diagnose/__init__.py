@@ -9,7 +9,8 @@ Layout (PySINDy-like: small pieces, one module per mechanism family):
 * `mechanisms` — the catalogue: `Mechanism` base class + leak, closure, coefficient, dead_time,
                  valve_characteristic, flow_law, pump_head, pump_dead_zone, overflow,
                  sensor_offset, sensor_characteristic, sensor_saturation
-* `problem`    — the fitting problem: calibration (+-5 %), candidates' edits, held-out folds
+* `problem`    — the fitting problem: calibration (+-5 %), candidates' edits, held-out folds;
+                 `Diagnosis`, the state every step reads and adds to
 * `forward`    — forward selection on the equation error's held-out blocks, alternatives
 * `replay`     — the replay stage, where the balances leave no finding
 * `backward`   — free run (unmeasured tanks): joint fit, backward elimination, ablation

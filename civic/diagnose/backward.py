@@ -5,18 +5,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from civic.plant.model import PlantModel
 
 from .forward import MAX_ALTERNATIVES
 from .mechanisms import Mechanism
-from .problem import FitResult, Problem, extra_starts, tried_record
-
-if TYPE_CHECKING:
-    from .fit import Diagnosis
+from .problem import Diagnosis, FitResult, Problem, extra_starts, tried_record
 
 MIN_ABLATION = 0.01     # a finding stays if removing it raises the held-out RMSE by 1 %
 FIXED_ABLATION = 0.05   # one without free parameters goes only if removing it lowers that RMSE by 5 %

@@ -1,16 +1,11 @@
 """Dating in the fitted model: a finding switched on or off mid-run, its time profiled again."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from .locate import ONSET_LR
 from .mechanisms import Mechanism
-from .problem import FitResult, Problem
-
-if TYPE_CHECKING:
-    from .fit import Diagnosis
+from .problem import Diagnosis, FitResult, Problem
 
 REDATE_REACH = 30.0     # s: a finding switched on mid-run is dated again this far outside its bracket
 

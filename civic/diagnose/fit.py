@@ -26,8 +26,6 @@ dating of a mid-run change in `dating`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from civic.plant.model import PlantModel
@@ -37,40 +35,16 @@ from .backward import backward_eliminate, check_integrator
 from .compare import INVENTORY, INVENTORY_SPREAD, EquationError, SimulationError
 from .dating import redate
 from .forward import forward_select
-from .locate import Localisation, localise, suspect_everywhere
+from .locate import localise, suspect_everywhere
 from .mechanisms import CATALOGUE, Coefficient, Mechanism
 from .noise import noise_sigma, robust_sigma
-from .problem import Calibration, FitResult, Problem, make_engine
+from .problem import Calibration, Diagnosis, FitResult, Problem, make_engine
 from .replay import replay_select
 
 # a rig seen through a free run (some tank unmeasured): the nominal coefficients are refitted
 # jointly with the candidates (no datasheet spread to hold them), more findings may join, the
 # final joint refit is multi-start and every kept finding must survive its ablation
 FREE_RUN_CAL = (0.1, 5.0)
-
-
-@dataclass
-class Diagnosis:
-    model_nominal: PlantModel
-    model_calibrated: PlantModel
-    model_improved: PlantModel
-    engine: object
-    loc: Localisation
-    base: FitResult                         # calibrated nominal
-    final: FitResult                        # calibrated + findings (fitted on training rows)
-    findings: list[dict] = field(default_factory=list)
-    tried: list[dict] = field(default_factory=list)
-    sigma: np.ndarray | None = None
-    cal_report: dict = field(default_factory=dict)
-    mismatch: bool = False
-    verdict: str = ""
-    final_all: FitResult | None = None       # final model refitted on all rows
-    ablation: dict = field(default_factory=dict)   # free run: held-out RMSE with each finding removed
-    integrator: dict = field(default_factory=dict)  # free run: integrator accuracy check
-    uncertainty: list = field(default_factory=list)  # per finding: jackknife standard errors
-    joint: FitResult | None = None          # free run: the joint multi-start fit before elimination
-    replay: dict = field(default_factory=dict)  # the replay stage's check, where it ran
-    negligible: dict = field(default_factory=dict)  # a negligible effect that explained the rest best
 
 
 def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float = 5.0,

@@ -3,18 +3,13 @@ the candidate with the best held-out BIC joins if it is significant; what the he
 separate from it is reported as an alternative, never as a finding."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from .compare import EquationError
 from .locate import still_flagged
 from .mechanisms import Mechanism
 from .mechanisms.base import tanks_of
-from .problem import MIN_GAIN, FitResult, Problem, extra_starts, fold_gains, significant, tried_record
-
-if TYPE_CHECKING:
-    from .fit import Diagnosis
+from .problem import MIN_GAIN, Diagnosis, FitResult, Problem, extra_starts, fold_gains, significant, tried_record
 
 # the first finding: the held-out SSE must fall by this much (further ones: MIN_GAIN, since they
 # must beat a model that already explains the mismatch, and a second one that only trades with

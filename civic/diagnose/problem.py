@@ -1,6 +1,6 @@
 """The fitting problem: candidates' edits of the model -> weighted residual rows of an engine
 (equation error or free-run simulation), fitted by least squares with the calibration and the
-unmeasured initial volumes, and judged on held-out rows."""
+unmeasured initial volumes, and judged on held-out rows; and the `Diagnosis` the steps fill in."""
 from __future__ import annotations
 
 import math
@@ -13,6 +13,7 @@ from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording
 
 from .compare import EquationError, SimulationError, fully_measured
+from .locate import Localisation
 from .mechanisms import Mechanism, coefficient_paths
 from .mechanisms.coefficient import CAL_SPREAD
 
@@ -335,3 +336,27 @@ def make_engine(model: PlantModel, rec: Recording, window_s: float = 5.0, n_init
     if fully_measured(model, rec):
         return EquationError(model, rec, window_s=window_s)
     return SimulationError(model, rec, horizon_s=None, n_init=n_init)
+
+
+@dataclass
+class Diagnosis:
+    model_nominal: PlantModel
+    model_calibrated: PlantModel
+    model_improved: PlantModel
+    engine: object
+    loc: Localisation
+    base: FitResult                         # calibrated nominal
+    final: FitResult                        # calibrated + findings (fitted on training rows)
+    findings: list[dict] = field(default_factory=list)
+    tried: list[dict] = field(default_factory=list)
+    sigma: np.ndarray | None = None
+    cal_report: dict = field(default_factory=dict)
+    mismatch: bool = False
+    verdict: str = ""
+    final_all: FitResult | None = None       # final model refitted on all rows
+    ablation: dict = field(default_factory=dict)   # free run: held-out RMSE with each finding removed
+    integrator: dict = field(default_factory=dict)  # free run: integrator accuracy check
+    uncertainty: list = field(default_factory=list)  # per finding: jackknife standard errors
+    joint: FitResult | None = None          # free run: the joint multi-start fit before elimination
+    replay: dict = field(default_factory=dict)  # the replay stage's check, where it ran
+    negligible: dict = field(default_factory=dict)  # a negligible effect that explained the rest best

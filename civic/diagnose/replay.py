@@ -2,8 +2,6 @@
 from the recorded inputs judges the candidates on a blocked 2-fold CV in time."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from civic.plant.model import PlantModel
@@ -13,10 +11,7 @@ from .compare import SimulationError
 from .forward import indistinguishable, outranked
 from .mechanisms import Mechanism
 from .noise import noise_sigma
-from .problem import Calibration, Problem, extra_starts, fold_gains, significant, tried_record
-
-if TYPE_CHECKING:
-    from .fit import Diagnosis
+from .problem import Calibration, Diagnosis, Problem, extra_starts, fold_gains, significant, tried_record
 
 # the replay stage: a fully measured plant whose balances leave no finding may still replay away
 # from its recording. An effect close to a common factor on the chain's flows closes every balance

@@ -21,7 +21,7 @@ from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording, initial_state, simulate
 
 from .compare import INVENTORY, EquationError, SimulationError, rmse
-from .fit import Diagnosis
+from .problem import Diagnosis
 from .locate import mask_intervals, median_nonzero, merge
 from .mechanisms.base import Mechanism
 

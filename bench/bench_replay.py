@@ -10,7 +10,6 @@
 """
 from __future__ import annotations
 
-import struct
 import subprocess
 import sys
 import tempfile
@@ -19,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from civic.pcapng import write_pcapng
 from civic.wire import SIGNALS, build_frames, frame_kinds, frame_heads, read_pcap, write_pcap
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -86,22 +86,11 @@ def streaming_rate(path: Path, entries, chunk: int) -> float:
 
 def as_pcapng(src: Path, dst: Path) -> None:
     """The classic capture src as a pcapng of one section and one Ethernet interface (microseconds),
-    one Enhanced Packet Block per frame, as dumpcap writes it."""
+    one Enhanced Packet Block per frame, as dumpcap writes it (`civic.pcapng.write_pcapng`)."""
     cap = read_pcap(src)
     k = int(cap.caplen[0])
     assert np.all(cap.caplen == k), "frames of one length (make_capture's)"
-    length = 32 + (k + 3) // 4 * 4
-    us = np.round(cap.messages["t"] * 1e6).astype(np.uint64)
-    head = np.zeros((len(cap), 7), "<u4")
-    head[:, 0], head[:, 1], head[:, 5], head[:, 6] = 6, length, k, k
-    head[:, 3], head[:, 4] = us >> np.uint64(32), us & np.uint64(0xFFFFFFFF)
-    blocks = np.zeros((len(cap), length), np.uint8)
-    blocks[:, :28] = head.view(np.uint8).reshape(len(cap), 28)
-    blocks[:, 28:28 + k] = np.frombuffer(cap.data, np.uint8)[cap.offset[:, None] + np.arange(k)]
-    blocks[:, -4:] = np.array([length], "<u4").view(np.uint8)
-    shb = struct.pack("<IIIHHqI", 0x0A0D0D0A, 28, 0x1A2B3C4D, 1, 0, -1, 28)
-    idb = struct.pack("<IIHHII", 1, 20, 1, 0, 262144, 20)
-    dst.write_bytes(shb + idb + blocks.tobytes())
+    write_pcapng(dst, cap.messages["t"], np.frombuffer(cap.data, np.uint8)[cap.offset[:, None] + np.arange(k)])
 
 
 def read_rate(path: Path) -> float:

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from civic.config import (MAX_FLOWS, Monitor, check_int, check_monitor_list, check_range, parse_common,
-                          parse_monitor)
+from civic.config import (MAX_FLOWS, Monitor, MonitorConfig, check_int, check_monitor_list, check_range,
+                          parse_common, parse_monitor)
 from civic.errors import CivicError
 from civic.files import read_json
 from civic.wire import CLASS_CODES
@@ -281,3 +281,23 @@ def parse_entries(raw, what: str) -> Entries:
 def load_entries(path: str | Path) -> Entries:
     """Read and validate an entries JSON file; errors are one line naming the key."""
     return parse_entries(read_json(path), str(path))
+
+
+def monitor_entries(mon: Monitor, estimator: str, rows=None, default_class=3, offsets=None) -> MonitorEntries:
+    """A configured monitor's entries: its class rows and compensate offsets (none: empty tables)."""
+    table = np.zeros((0, 5), np.int64) if rows is None else np.asarray(rows, np.int64).reshape(-1, 5)
+    offsets = np.zeros((0, 3), np.int64) if offsets is None else offsets
+    return MonitorEntries(name=mon.name, signal=mon.signal, window=mon.window,
+                          precondition=mon.precondition, compensate=mon.compensate if len(offsets) else None,
+                          kind=mon.kind, hold=mon.hold, limits=mon.limits,
+                          estimator="value" if mon.kind == "limit" else estimator,
+                          default_class=default_class, classes=table, offsets=offsets)
+
+
+def probe_entries(config: MonitorConfig, estimator: str) -> Entries:
+    """Entries with empty class and compensate tables: the switch computes runs, slopes and the
+    compensate key aux, every verdict says error."""
+    monitors = [monitor_entries(m, estimator) for m in config.monitors]
+    for m, mon in zip(monitors, config.monitors):
+        m.compensate = mon.compensate          # aux computed, nothing subtracted
+    return Entries(monitors=monitors, udp_port=config.udp_port, plant_prefix=config.plant_prefix)

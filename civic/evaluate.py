@@ -14,11 +14,10 @@ from typing import NamedTuple
 import numpy as np
 
 from civic.config import MonitorConfig
-from civic.entries import Entries
+from civic.entries import Entries, probe_entries
 from civic.errors import CivicError
 from civic.pipeline import SwitchModel
-from civic.train import NAMES, probe_entries
-from civic.wire import CLASS_CODES, ip_to_int, monitor_verdict, read_pcap
+from civic.wire import CLASS_CODES, CLASS_NAMES, ip_to_int, monitor_verdict, read_pcap
 
 CLASSES = (1, 2, 3)
 
@@ -37,7 +36,7 @@ def score(true: np.ndarray, pred: np.ndarray) -> dict:
         rec = tp / (tp + fn) if tp + fn else 0.0
         f1 = 2 * prec * rec / (prec + rec) if prec + rec else 0.0
         support = tp + fn
-        out["classes"][NAMES[c]] = {"precision": prec, "recall": rec, "f1": f1,
+        out["classes"][CLASS_NAMES[c]] = {"precision": prec, "recall": rec, "f1": f1,
                                     "accuracy": (tp + tn) / len(true) if len(true) else 0.0,
                                     "support": support}
         if support:
@@ -74,7 +73,7 @@ class MonitorResult:
         pred = np.concatenate(self.pred) if self.pred else np.zeros(0, int)
         s = score(true, pred)
         s["coverage"] = len(true) / self.qualified if self.qualified else 0.0
-        s["detection_delay_s"] = {NAMES[c]: (float(np.mean(d)) if d else None) for c, d in self.delays.items()}
+        s["detection_delay_s"] = {CLASS_NAMES[c]: (float(np.mean(d)) if d else None) for c, d in self.delays.items()}
         s["undetected_runs"] = sum(1 for r in self.runs if not np.any(r.code == r.cls))
         return s
 
@@ -178,7 +177,7 @@ def plot_monitor(res: MonitorResult, path: Path, entries_monitor=None) -> None:
         ax.set_ylim(lo_y, hi_y)
     ax.set(title=f"{res.name}: window slope of evaluated messages", xlabel="time in recording (s)",
            ylabel="slope (mL/s)")
-    ax.legend(handles=[plt.Line2D([], [], marker="o", ls="", color=c, label=NAMES[k]) for k, c in colors.items()],
+    ax.legend(handles=[plt.Line2D([], [], marker="o", ls="", color=c, label=CLASS_NAMES[k]) for k, c in colors.items()],
               title="true class")
     if compensated:
         ax = axes[1]

@@ -23,14 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from civic.config import Monitor, MonitorConfig
-from civic.entries import SLOPE_MAX, SLOPE_MIN, Entries, MonitorEntries
+from civic.entries import SLOPE_MAX, SLOPE_MIN, Entries, MonitorEntries, monitor_entries, probe_entries
 from civic.errors import CivicError
 from civic.pipeline import SwitchModel
 from civic.pipeline.classification import compensate
 from civic.pipeline.slope import to_int32
 from civic.wire import CLASS_CODES, ip_to_int, read_pcap
 
-NAMES = {v: k for k, v in CLASS_CODES.items()}
 LEVEL_TOP = 10_000          # mL: an upper tank's rim; bands above it repeat the last one
 ABOVE_NORMAL = CLASS_CODES["error"]  # faster than any normal run: the model does not explain it
 
@@ -71,25 +70,6 @@ def read_labels(path: str | Path) -> list[dict]:
         if r["class"] not in CLASS_CODES:
             raise CivicError(f"{path}: row {i + 2}: class {r['class']!r} is not normal/warning/error")
     return rows
-
-
-def monitor_entries(mon: Monitor, estimator: str, rows=None, default_class=3, offsets=None) -> MonitorEntries:
-    table = np.zeros((0, 5), np.int64) if rows is None else np.asarray(rows, np.int64).reshape(-1, 5)
-    offsets = np.zeros((0, 3), np.int64) if offsets is None else offsets
-    return MonitorEntries(name=mon.name, signal=mon.signal, window=mon.window,
-                          precondition=mon.precondition, compensate=mon.compensate if len(offsets) else None,
-                          kind=mon.kind, hold=mon.hold, limits=mon.limits,
-                          estimator="value" if mon.kind == "limit" else estimator,
-                          default_class=default_class, classes=table, offsets=offsets)
-
-
-def probe_entries(config: MonitorConfig, estimator: str) -> Entries:
-    """Entries with empty class and compensate tables: the switch computes runs, slopes and the
-    compensate key aux, every verdict says error."""
-    monitors = [monitor_entries(m, estimator) for m in config.monitors]
-    for m, mon in zip(monitors, config.monitors):
-        m.compensate = mon.compensate          # aux computed, nothing subtracted
-    return Entries(monitors=monitors, udp_port=config.udp_port, plant_prefix=config.plant_prefix)
 
 
 def collect_runs(folder: str | Path, labels: list[dict], config: MonitorConfig, estimator: str) -> list[Run]:

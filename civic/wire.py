@@ -38,6 +38,7 @@ OFF_VERDICT = OFF_PAYLOAD + 18
 SIGNALS = ("l1", "l2", "l3", "l4", "p1", "v1", "v2")
 VERDICT_NAMES = {0: "not evaluated", 1: "normal", 2: "warning", 3: "error"}
 CLASS_CODES = {"normal": 1, "warning": 2, "error": 3}
+CLASS_NAMES = {v: k for k, v in CLASS_CODES.items()}
 MAX_MONITORS = 8
 
 PCAP_MAGICS = {  # magic as read little-endian -> (byte order, fraction per second)

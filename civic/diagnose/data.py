@@ -58,7 +58,44 @@ def check(rec: Recording, model: PlantModel) -> Recording:
     for k, v in rec.signals.items():
         if not np.all(np.isfinite(v)):
             raise CivicError(f"{rec.path}: signal {k} has NaN/infinite values")
-    return regularise(rec, model.dt)
+    return regularise(without_unreadable(rec, model), model.dt)
+
+
+BEYOND_TANK = 1.5    # a reading this far beyond all the water its tank can hold is a fault code
+
+
+def without_unreadable(rec: Recording, model: PlantModel) -> Recording:
+    """The recording without the samples in which a sensor reads what no tank can hold: the top of
+    its wire range (0xFFFF, a sensor's fault code) or more than BEYOND_TANK times its tank's
+    capacity (or the circuit's water), or as far below zero. Those samples are left out as lost
+    messages are; `rec.unreadable` says which, per sensor. Errors when more than half are."""
+    bad = np.zeros(len(rec.t), bool)
+    unreadable = []
+    for s in model.sensors:
+        if s.name not in rec.signals or s.quantity != "volume":
+            continue
+        tank = model.tank(s.tank)
+        hold = min(tank.capacity, model.total_volume or np.inf) * BEYOND_TANK * s.gain
+        v = np.asarray(rec.signals[s.name], float)
+        mask = (v - s.offset > hold) | (v - s.offset < -hold)
+        if s.wire and s.wire in (rec.fields or {}):
+            mask |= np.asarray(rec.fields[s.wire]) >= 0xFFFF
+        if mask.any():
+            at = rec.t[mask]
+            unreadable.append({"signal": s.name, "samples": int(mask.sum()), "from_s": round(float(at[0]), 3),
+                               "to_s": round(float(at[-1]), 3), "values": sorted({float(x) for x in v[mask]})[:5]})
+            bad |= mask
+    if bad.sum() > len(bad) // 2:
+        raise CivicError(f"{rec.path}: more than half of the samples have a sensor reading beyond any tank "
+                         f"({', '.join(u['signal'] for u in unreadable)})")
+    if not bad.any():
+        rec.unreadable = []
+        return rec
+    keep = ~bad
+    out = Recording(rec.t[keep], {k: np.asarray(v)[keep] for k, v in rec.signals.items()},
+                    {k: np.asarray(v)[keep] for k, v in (rec.fields or {}).items()}, rec.path)
+    out.unreadable = unreadable
+    return out
 
 
 SHORT_GAP = 2     # samples: a run of lost messages this short is interpolated, not a gap
@@ -94,6 +131,7 @@ def regularise(rec: Recording, dt: float) -> Recording:
     fields = {name: np.asarray(v)[keep][src] for name, v in (rec.fields or {}).items()}
     out = Recording(grid * dt, signals, fields, rec.path)
     out.gaps = gaps
+    out.unreadable = getattr(rec, "unreadable", [])
     return out
 
 

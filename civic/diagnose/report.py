@@ -235,6 +235,7 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         "verdict": diag.verdict,
         "recording": rec.path,
         "duration_s": round(float(len(rec.t) * diag.model_nominal.dt), 3),
+        "unreadable": getattr(rec, "unreadable", []),
         "model": diag.model_nominal.name,
         "calibration": diag.cal_report,
         "localisation": {

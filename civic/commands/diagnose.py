@@ -57,9 +57,10 @@ def run(args) -> int:
     for line in outside_range(model, rec.signals):
         print(f"civic diagnose: warning: {args.recording}: {line}", file=sys.stderr)
     for u in rec.unreadable:
-        print(f"civic diagnose: warning: {args.recording}: sensor {u['signal']} read "
-              f"{', '.join(f'{v:g}' for v in u['values'])} (beyond its tank) in {u['samples']} samples, "
-              f"{u['from_s']:g}-{u['to_s']:g} s: left out as lost messages", file=sys.stderr)
+        print(f"civic diagnose: warning: {args.recording}: {u['signal']} read "
+              f"{', '.join(f'{v:g}' for v in u['values'])} (beyond {u['beyond']}) in {u['samples']} samples, "
+              f"{u['from_s']:g}-{u['to_s']:g} s: " + ("left out of the comparisons" if u["beyond"] == "its tank"
+                                                      else "counted as lost messages"), file=sys.stderr)
     from civic.diagnose.compare import fully_measured
 
     full = fully_measured(model, rec)

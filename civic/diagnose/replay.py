@@ -37,8 +37,8 @@ def replay_select(model: PlantModel, rec: Recording, diag: Diagnosis, candidates
     (its Problem, [finding], its fit); otherwise None (`diag.replay` records the check). Not on a
     record with lost stretches: a replay through unknown inputs drifts (a clean run with 10 s lost
     replayed 1.27 sigmas off, and a T3 rim took the drift)."""
-    gaps = getattr(rec, "gaps", None)
-    if gaps is not None and gaps.any():
+    lost = getattr(rec, "lost", getattr(rec, "gaps", None))
+    if lost is not None and lost.any():
         diag.replay = {"skipped": "the recording has lost stretches: the inputs there are unknown"}
         return None
     engine = SimulationError(model, rec, average=REPLAY_AVERAGE)

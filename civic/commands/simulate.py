@@ -273,16 +273,25 @@ def _write_truth(path: str, res, args, faults: dict, duration: float) -> None:
 
 
 def _open_loop(args, model) -> int:
-    from civic.plant.simulate import initial_state, load_recording, outside_range, simulate, unmeasured_tanks
+    from civic.plant.simulate import (SHORT_GAP, initial_state, load_recording, outside_range, regularise,
+                                      simulate, unmeasured_tanks)
 
     src = args.inputs or args.like
     rec = load_recording(src, model)
-    n = len(rec.t)
-    if n < 2:
+    if len(rec.t) < 2:
         raise CivicError(f"{src}: needs at least 2 samples")
     step = np.median(np.diff(rec.t))
     if abs(step - model.dt) > 0.01 * model.dt:
         raise CivicError(f"{src}: sample time {step:g} s differs from the model's dt {model.dt:g} s")
+    if np.any(np.diff(rec.t) <= 0):
+        raise CivicError(f"{src}: time stamps are not increasing")
+    # lost messages: the samples stay at their times, and the readings filled in for them are not scored
+    rec = regularise(rec, model.dt)
+    n = len(rec.t)
+    if rec.gaps.any():
+        print(f"civic simulate: warning: {src}: {int(rec.gaps.sum())} samples lost in runs longer than "
+              f"{SHORT_GAP}: left out of the RMSE, the simulation started again from the readings after each "
+              f"(where every tank is measured)", file=sys.stderr)
     missing = [i for i in model.input_names if i not in rec.signals]
     if missing:
         raise CivicError(f"{src}: no column for input(s) {', '.join(missing)}")
@@ -300,11 +309,20 @@ def _open_loop(args, model) -> int:
     t = np.arange(n) * model.dt
     init = {k: np.asarray(v)[:N] for k, v in rec.signals.items()}
     x0 = initial_state(model, init, N)
-    sim = simulate(model, t, {k: rec.signals[k] for k in model.input_names}, x0)
+    inputs = {k: rec.signals[k] for k in model.input_names}
+    sim = simulate(model, t, inputs, x0)
+    if rec.gaps.any() and not unmeasured:
+        # the commands in a lost stretch are unknown: after it, start again from the readings
+        for a in np.flatnonzero(rec.gaps[:-1] & ~rec.gaps[1:]) + 1:
+            b = a + int(np.argmax(rec.gaps[a:])) if rec.gaps[a:].any() else n
+            x0a = initial_state(model, {k: np.asarray(v)[a:a + 1] for k, v in rec.signals.items()}, 1)
+            part = simulate(model, t[a:b] - t[a], {k: np.asarray(v)[a:b] for k, v in inputs.items()}, x0a)
+            for name in model.signal_names:
+                sim[name][a:b] = part[name]
     rows = []
     for name in model.signal_names:
         if name in rec.signals:
-            e = sim[name][N:] - np.asarray(rec.signals[name])[N:]
+            e = (sim[name] - np.asarray(rec.signals[name]))[N:][~rec.gaps[N:]]
             rows.append((name, float(np.sqrt(np.mean(e ** 2))), float(np.max(np.abs(e)))))
     print(f"open loop on {src}: {n} samples, initial state from the first sample"
           + (f", unmeasured states from the first {N}" if N > 1 else ""))

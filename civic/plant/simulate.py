@@ -694,6 +694,42 @@ def load_recording(path, model: PlantModel, plant: str | None = None) -> Recordi
     return Recording(msgs["t"] - msgs["t"][0], from_wire(model, fields), fields, path)
 
 
+SHORT_GAP = 2     # samples: a run of lost messages this short is interpolated, not a gap
+
+
+def regularise(rec: Recording, dt: float) -> Recording:
+    """Put the samples on the uniform grid k*dt. Missing samples (lost messages): a run of up to
+    SHORT_GAP is interpolated linearly in the signals (the fields hold their last value); longer
+    runs hold the last value and are flagged in `rec.gaps` (the comparisons ignore them). Every
+    5 s balance window touching a flagged sample is left out: with 1 % of the messages lost one
+    by one, that was 40 % of them."""
+    k = np.rint(np.asarray(rec.t, float) / dt).astype(np.int64)
+    k -= k[0]
+    n = int(k[-1]) + 1
+    if n == len(k) and np.all(np.diff(k) == 1):
+        rec.gaps = np.zeros(n, bool)
+        return rec
+    keep = np.concatenate(([True], np.diff(k) > 0))      # duplicates: first one wins
+    k = k[keep]
+    if n > 4 * len(k):
+        raise CivicError(f"{rec.path}: more than 3/4 of the samples are missing")
+    src = np.searchsorted(k, np.arange(n), side="right") - 1  # last received sample
+    grid = np.arange(n)
+    run = np.diff(k)[np.minimum(src, len(k) - 2)] - 1          # length of the run a sample is in
+    gaps = np.ones(n, bool)
+    gaps[k] = False
+    short = gaps & (run <= SHORT_GAP)
+    gaps &= ~short
+    signals = {}
+    for name, v in rec.signals.items():
+        v = np.asarray(v, float)[keep]
+        signals[name] = np.where(short, np.interp(grid, k, v), v[src])
+    fields = {name: np.asarray(v)[keep][src] for name, v in (rec.fields or {}).items()}
+    out = Recording(grid * dt, signals, fields, rec.path)
+    out.gaps = gaps
+    return out
+
+
 def _load_csv(path: str, model: PlantModel) -> Recording:
     try:
         with open(path) as fh:

@@ -84,7 +84,7 @@ def test_cascaded_tanks_round_trip(tmp_path, capsys):
 def test_split_overflow_fraction_is_fitted():
     """The upper tank (unmeasured) spills half into the measured lower tank, half outside:
     the catalogue's split overflow names it and recovers the rim and the fraction."""
-    from civic.diagnose.data import regularise
+    from civic.plant.simulate import regularise
     from civic.diagnose.fit import diagnose
     from civic.plant.model import Overflow, PlantModel
     from civic.plant.simulate import Recording, simulate

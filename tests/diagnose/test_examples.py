@@ -129,7 +129,7 @@ def test_short_runs_of_lost_messages_are_interpolated():
     one holds the last value and is flagged; fields always hold."""
     import numpy as np
 
-    from civic.diagnose.data import SHORT_GAP, regularise
+    from civic.plant.simulate import SHORT_GAP, regularise
     from civic.plant.simulate import Recording
 
     k = np.array([0, 1, 3, 4, 5 + SHORT_GAP + 1, 5 + SHORT_GAP + 2])   # one lost at 2, a run after 4

@@ -465,10 +465,35 @@ def test_cli_like_recording(capsys):
     assert rmse["L3"] < 0.06                    # noise 0.02 L + small model error
 
 
+def test_cli_like_a_recording_with_lost_messages(tmp_path, capsys):
+    """5 s of messages lost at 100 s: the samples keep their times (before, the rest of the record
+    was simulated 5 s early), the simulation starts again from the readings after the gap (the
+    commands in it are unknown) and the gap is left out of the RMSE."""
+    from civic.wire import read_pcap, write_pcap
+
+    cap = read_pcap(ROOT / "traces" / "diagnose" / "example_none" / "case.pcap")
+    keep = np.flatnonzero((np.arange(len(cap)) < 1000) | (np.arange(len(cap)) >= 1050))
+    write_pcap(tmp_path / "lost.pcap", cap.messages["t"][keep], [cap.frame(i) for i in keep])
+    assert civic_main(["simulate", "--model", str(PLANT), "--like", str(tmp_path / "lost.pcap"),
+                       "-o", str(tmp_path / "sim.csv")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "50 samples lost" in err[0]
+    sim = np.genfromtxt(tmp_path / "sim.csv", delimiter=",", names=True)
+    assert len(sim) == len(cap) and sim["t_s"][-1] == pytest.approx(cap.messages["t"][-1] - cap.messages["t"][0], abs=0.05)
+    # at the first sample after the gap the simulation reads what the plant read
+    assert sim["t_s"][1050] == pytest.approx(105.0, abs=1e-6)
+    assert abs(sim["l2"][1050] - cap.messages["l2"][1050]) <= 1
+    # and before it, the run on the whole recording's times
+    assert civic_main(["simulate", "--model", str(PLANT), "--like",
+                       str(ROOT / "traces" / "diagnose" / "example_none" / "case.pcap"), "-o", str(tmp_path / "whole.csv")]) == 0
+    whole = np.genfromtxt(tmp_path / "whole.csv", delimiter=",", names=True)
+    assert np.array_equal(whole["l3"][:1000], sim["l3"][:1000])
+
+
 @pytest.mark.parametrize("argv, msg", [
     ([], "SCENARIO"),
     (["drain"], "-o"),
-    (["drain", "-o", "x.txt"], ".pcap or .csv"),
+    (["drain", "-o", "x.txt"], ".pcap, .pcapng or .csv"),
     (["drain", "--fault", "vm9=1", "-o", "x.csv"], "unknown valve"),
     (["drain", "--fault", "vm1=2", "-o", "x.csv"], "[0, 1]"),
     (["drain", "--v0", "20", "-o", "x.csv"], "start volume"),

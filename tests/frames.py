@@ -1,7 +1,9 @@
 """Crafted frames for bad-input and pass-through tests (scapy, independent of civic.wire)."""
 from __future__ import annotations
 
+import copy
 import struct
+from pathlib import Path
 
 import numpy as np
 
@@ -12,7 +14,9 @@ from scapy.packet import Raw
 from scapy.utils import rdpcap, wrpcap
 
 from civic.scapy_layer import PlantMessage
-from civic.wire import SIGNALS, build_frames, read_pcap, write_pcap
+from civic.wire import OFF_PAYLOAD, OFF_UDP_CSUM, SIGNALS, build_frames, read_pcap, write_pcap
+
+LEAK_CASE = Path(__file__).resolve().parents[1] / "traces" / "diagnose" / "example_leak_t3" / "case.pcap"
 
 
 def plant(src="10.0.0.1", seq=1, l3=7000, dport=50000, **fields):
@@ -186,3 +190,16 @@ def mixed_pcapng(src, dst) -> None:
         ng += packet("<", i % 2, stamp, frame)
     with open(dst, "wb") as fh:
         fh.write(ng)
+
+
+def with_readings(dst, signal: str, value: int, t_from: float, t_to: float, case=LEAK_CASE) -> None:
+    """A bundled case with `signal` reading `value` (wire units) from t_from to t_to s (UDP
+    checksums set to 0: no checksum, valid for IPv4)."""
+    cap = copy.deepcopy(read_pcap(case))
+    t = cap.messages["t"] - cap.messages["t"][0]
+    buf = np.frombuffer(cap.data, np.uint8)
+    at = cap.offset[(t >= t_from) & (t < t_to)]
+    field = OFF_PAYLOAD + 4 + 2 * SIGNALS.index(signal)
+    buf[at + field], buf[at + field + 1] = value >> 8, value & 0xFF
+    buf[at + OFF_UDP_CSUM] = buf[at + OFF_UDP_CSUM + 1] = 0
+    cap.write(dst)

@@ -45,7 +45,7 @@ def run(args) -> int:
     from civic.diagnose.fit import diagnose
     from civic.diagnose.report import build_report, plot, print_summary, write_json
     from civic.plant.model import PlantModel
-    from civic.plant.simulate import outside_range
+    from civic.plant.simulate import outside_range, unreadable_lines
 
     _check_out(args.json, (".json",))
     _check_out(args.plot, (".png", ".pdf", ".svg"))
@@ -56,11 +56,8 @@ def run(args) -> int:
     rec = data.load(args.recording, model, args.plant)
     for line in outside_range(model, rec.signals):
         print(f"civic diagnose: warning: {args.recording}: {line}", file=sys.stderr)
-    for u in rec.unreadable:
-        print(f"civic diagnose: warning: {args.recording}: {u['signal']} read "
-              f"{', '.join(f'{v:g}' for v in u['values'])} (beyond {u['beyond']}) in {u['samples']} samples, "
-              f"{u['from_s']:g}-{u['to_s']:g} s: " + ("left out of the comparisons" if u["beyond"] == "its tank"
-                                                      else "counted as lost messages"), file=sys.stderr)
+    for line in unreadable_lines(rec):
+        print(f"civic diagnose: warning: {args.recording}: {line}", file=sys.stderr)
     from civic.diagnose.compare import fully_measured
 
     full = fully_measured(model, rec)

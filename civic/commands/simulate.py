@@ -274,7 +274,7 @@ def _write_truth(path: str, res, args, faults: dict, duration: float) -> None:
 
 def _open_loop(args, model) -> int:
     from civic.plant.simulate import (SHORT_GAP, initial_state, load_recording, outside_range, regularise,
-                                      simulate, unmeasured_tanks)
+                                      simulate, unmeasured_tanks, unreadable_lines, with_unreadable_marked)
 
     src = args.inputs or args.like
     rec = load_recording(src, model)
@@ -287,11 +287,15 @@ def _open_loop(args, model) -> int:
         raise CivicError(f"{src}: time stamps are not increasing")
     # lost messages: the samples stay at their times, and the readings filled in for them are not scored
     rec = regularise(rec, model.dt)
+    lost = int(rec.gaps.sum())
+    rec = with_unreadable_marked(rec, model)
     n = len(rec.t)
-    if rec.gaps.any():
-        print(f"civic simulate: warning: {src}: {int(rec.gaps.sum())} samples lost in runs longer than "
-              f"{SHORT_GAP}: left out of the RMSE, the simulation started again from the readings after each "
-              f"(where every tank is measured)", file=sys.stderr)
+    if lost:
+        print(f"civic simulate: warning: {src}: {lost} samples lost in runs longer than {SHORT_GAP}: left out "
+              f"of the RMSE, the simulation started again from the readings after each (where every tank is "
+              f"measured)", file=sys.stderr)
+    for line in unreadable_lines(rec):
+        print(f"civic simulate: warning: {src}: {line}", file=sys.stderr)
     missing = [i for i in model.input_names if i not in rec.signals]
     if missing:
         raise CivicError(f"{src}: no column for input(s) {', '.join(missing)}")
@@ -311,10 +315,10 @@ def _open_loop(args, model) -> int:
     x0 = initial_state(model, init, N)
     inputs = {k: rec.signals[k] for k in model.input_names}
     sim = simulate(model, t, inputs, x0)
-    if rec.gaps.any() and not unmeasured:
+    if rec.lost.any() and not unmeasured:
         # the commands in a lost stretch are unknown: after it, start again from the readings
-        for a in np.flatnonzero(rec.gaps[:-1] & ~rec.gaps[1:]) + 1:
-            b = a + int(np.argmax(rec.gaps[a:])) if rec.gaps[a:].any() else n
+        for a in np.flatnonzero(rec.lost[:-1] & ~rec.lost[1:]) + 1:
+            b = a + int(np.argmax(rec.lost[a:])) if rec.lost[a:].any() else n
             x0a = initial_state(model, {k: np.asarray(v)[a:a + 1] for k, v in rec.signals.items()}, 1)
             part = simulate(model, t[a:b] - t[a], {k: np.asarray(v)[a:b] for k, v in inputs.items()}, x0a)
             for name in model.signal_names:

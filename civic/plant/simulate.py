@@ -730,6 +730,71 @@ def regularise(rec: Recording, dt: float) -> Recording:
     return out
 
 
+BEYOND_TANK = 1.5    # a reading this far beyond all the water its tank can hold is a fault code
+BEYOND_RANGE = 0.05  # a command this share of its range beyond it is no command
+
+
+def with_unreadable_marked(rec: Recording, model: PlantModel) -> Recording:
+    """Mark the samples in which a sensor reads what no tank can hold: the top of its wire range
+    (0xFFFF, a sensor's fault code) or more than BEYOND_TANK times its tank's capacity (or the
+    circuit's water), or as far below zero. The comparisons ignore them as they ignore lost
+    messages (`rec.gaps`), and the sensor's value there is interpolated from its readable
+    neighbours; the inputs were received, so unlike lost messages (`rec.lost`) they do not stop
+    an open-loop replay. `rec.unreadable` says which sensor, how many samples, when and what it
+    read. A command beyond its range by BEYOND_RANGE of it (6553.5 % is 0xFFFF) says nothing of
+    what was applied: those samples count as lost messages, the last readable command held.
+    Errors when more than half of the samples of a signal are unreadable."""
+    bad = np.zeros(len(rec.t), bool)
+    rec.unreadable = []
+
+    def note(name, mask, v, beyond):
+        at = rec.t[mask]
+        rec.unreadable.append({"signal": name, "samples": int(mask.sum()), "beyond": beyond,
+                               "from_s": round(float(at[0]), 3), "to_s": round(float(at[-1]), 3),
+                               "values": sorted({float(x) for x in v[mask]})[:5]})
+    for s in model.sensors:
+        if s.name not in rec.signals or s.quantity != "volume":
+            continue
+        hold = min(model.tank(s.tank).capacity, model.total_volume or np.inf) * BEYOND_TANK * s.gain
+        v = np.asarray(rec.signals[s.name], float)
+        mask = np.abs(v - s.offset) > hold
+        if s.wire and s.wire in (rec.fields or {}):
+            mask |= np.asarray(rec.fields[s.wire]) >= 0xFFFF
+        if not mask.any():
+            continue
+        if mask.sum() > len(mask) // 2:
+            raise CivicError(f"{rec.path}: sensor {s.name} reads beyond its tank in more than half of the samples")
+        note(s.name, mask, v, "its tank")
+        rec.signals[s.name] = np.where(mask, np.interp(rec.t, rec.t[~mask], v[~mask]), v)
+        bad |= mask
+    lost = rec.gaps.copy()
+    for i in model.inputs:
+        if i.name not in rec.signals or i.min is None or i.max is None:
+            continue
+        v = np.asarray(rec.signals[i.name], float)
+        slack = BEYOND_RANGE * (i.max - i.min)
+        mask = (v > i.max + slack) | (v < i.min - slack)
+        if not mask.any():
+            continue
+        if mask.sum() > len(mask) // 2:
+            raise CivicError(f"{rec.path}: input {i.name} is beyond its range in more than half of the samples")
+        note(i.name, mask, v, "its range")
+        last = np.maximum.accumulate(np.where(mask, -1, np.arange(len(v))))    # the last readable command
+        rec.signals[i.name] = v[np.where(last < 0, np.argmin(mask), last)]
+        lost |= mask
+    rec.lost = lost
+    rec.gaps = lost | bad
+    return rec
+
+
+def unreadable_lines(rec: Recording) -> list[str]:
+    """One warning line per signal `with_unreadable_marked` left out."""
+    return [f"{u['signal']} read {', '.join(f'{v:g}' for v in u['values'])} (beyond {u['beyond']}) in "
+            f"{u['samples']} samples, {u['from_s']:g}-{u['to_s']:g} s: "
+            + ("left out of the comparisons" if u["beyond"] == "its tank" else "counted as lost messages")
+            for u in rec.unreadable]
+
+
 def _load_csv(path: str, model: PlantModel) -> Recording:
     try:
         with open(path) as fh:

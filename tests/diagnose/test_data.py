@@ -1,7 +1,6 @@
 """Recordings as diagnosis reads them: sensor fault codes and impossible commands left out."""
 from __future__ import annotations
 
-import copy
 import json
 from pathlib import Path
 
@@ -11,24 +10,11 @@ import pytest
 from civic.cli import main
 from civic.diagnose import data
 from civic.plant.model import PlantModel
-from civic.wire import OFF_PAYLOAD, OFF_UDP_CSUM, SIGNALS, read_pcap
+from frames import with_readings
 
 ROOT = Path(__file__).resolve().parents[2]
 CASES = ROOT / "traces" / "diagnose"
-CASE = CASES / "example_leak_t3" / "case.pcap"
-
-
-def with_readings(dst: Path, signal: str, value: int, t_from: float, t_to: float, case: Path = CASE) -> None:
-    """A bundled case with `signal` reading `value` (wire units) from t_from to t_to s (UDP
-    checksums set to 0: no checksum, valid for IPv4)."""
-    cap = copy.deepcopy(read_pcap(case))
-    t = cap.messages["t"] - cap.messages["t"][0]
-    buf = np.frombuffer(cap.data, np.uint8)
-    at = cap.offset[(t >= t_from) & (t < t_to)]
-    field = OFF_PAYLOAD + 4 + 2 * SIGNALS.index(signal)
-    buf[at + field], buf[at + field + 1] = value >> 8, value & 0xFF
-    buf[at + OFF_UDP_CSUM] = buf[at + OFF_UDP_CSUM + 1] = 0
-    cap.write(dst)
+CASE = CASES / "example_leak_t3" / "case.pcap"      # with_readings' default
 
 
 @pytest.mark.parametrize("field, value, t0, said", [

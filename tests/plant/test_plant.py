@@ -490,6 +490,21 @@ def test_cli_like_a_recording_with_lost_messages(tmp_path, capsys):
     assert np.array_equal(whole["l3"][:1000], sim["l3"][:1000])
 
 
+def test_cli_like_a_recording_with_a_fault_code(tmp_path, capsys):
+    """20 s of L2 at 0xFFFF: left out of the RMSE with a warning (before, 65.5 L entered it)."""
+    from frames import LEAK_CASE, with_readings
+
+    with_readings(tmp_path / "fault.pcap", "l2", 0xFFFF, 200.0, 220.0)
+    rmse = {}
+    for path in (LEAK_CASE, tmp_path / "fault.pcap"):
+        assert civic_main(["simulate", "--model", str(PLANT), "--like", str(path)]) == 0
+        out = capsys.readouterr()
+        rmse[path] = {line.split()[0]: float(line.split()[1]) for line in out.out.splitlines() if line.startswith("L")}
+    assert "L2 read 65.535 (beyond its tank) in 200 samples, 200-219.9 s" in out.err
+    assert rmse[tmp_path / "fault.pcap"]["L2"] == pytest.approx(rmse[LEAK_CASE]["L2"], rel=0.05)
+    assert rmse[LEAK_CASE]["L2"] < 1.0
+
+
 @pytest.mark.parametrize("argv, msg", [
     ([], "SCENARIO"),
     (["drain"], "-o"),

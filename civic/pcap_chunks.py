@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
-from civic.pcapng import PCAPNG_HEAD, PcapNgBlocks, packet_blocks
 from civic.links import LINK_VIEW, LINKTYPE_ETHERNET, ethertypes, viewed
+from civic.pcapng import PCAPNG_HEAD, PcapNgBlocks, packet_blocks
 from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, PCAP_HEADER, frame_heads, frame_kinds, is_pcapng,
                         pcap_header, record_offsets, record_times)
 
@@ -30,7 +30,7 @@ RECORD_HEADER = 16
 @dataclass
 class Chunk:
     """Consecutive records of a capture: data[:end] holds them, offset[i] is where frame i's
-    Ethernet view starts (`wire.LINK_VIEW`)."""
+    Ethernet view starts (`civic.links`)."""
 
     data: bytearray
     end: int

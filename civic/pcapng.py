@@ -2,16 +2,16 @@
 
 `PcapNgBlocks(path).walk(raw, final)` walks the blocks of a pcapng file, or of consecutive
 blocks of it read in chunks, and returns each Enhanced Packet Block's frame offset and captured
-length (of its Ethernet view, `wire.LINK_VIEW`), capture time and link type. The state that spans chunks (the section's byte order, its
-interfaces' link types and time resolutions) lives in the walker. Frames stay where they are
-in the file's bytes, so a patched verdict is written back into the pcapng itself. Errors are
-one line: a cut-off or corrupt block, a frame on an interface neither Ethernet nor Linux
-cooked, and the packet
-blocks that carry no capture time (Simple) or are obsolete (Packet), which are never skipped
-silently.
+length (of its Ethernet view, `civic.links`), capture time and link type. The state that spans
+chunks (the section's byte order, its interfaces' link types and time resolutions) lives in the
+walker. Frames stay where they are in the file's bytes, so a patched verdict is written back
+into the pcapng itself. Errors are one line: a cut-off or corrupt block, a frame on an
+interface neither Ethernet nor Linux cooked, and the packet blocks that carry no capture time
+(Simple) or are obsolete (Packet), which are never skipped silently.
 
-`PcapNgWriter` and `write_pcapng` write what civic writes as pcap (one section, one Ethernet
-interface, microsecond stamps) as pcapng, for a path that asks for it (`OUT.pcapng`).
+`write_pcapng` and `packet_blocks` (which `pcap_chunks.PcapWriter` streams) write what civic
+writes as pcap (one section, one Ethernet interface, microsecond stamps) as pcapng, for a path
+that asks for it (`OUT.pcapng`).
 """
 from __future__ import annotations
 
@@ -144,7 +144,6 @@ class PcapNgBlocks:
                 shift = struct.unpack_from(self.order + "q", raw, opt + 4)[0]
             opt += 4 + (n + 3) // 4 * 4
         self.interfaces.append((link, units, shift))
-
 
 
 def _block(kind: int, body: bytes) -> bytes:

@@ -2,9 +2,10 @@
 
 Captures (classic pcap, or pcapng via `civic.pcapng`) are read into numpy arrays in bulk: no
 per-packet Python object. Frames are Ethernet, or Linux cooked captures (`tcpdump -i any`),
-which are viewed as Ethernet from 14 bytes before their IPv4 packet (`civic.links`). `read_pcap` returns a `Capture` holding the file's bytes, each record's
-offset and a structured array of decoded message fields; `Capture.write`
-writes it back byte-identical except for patched verdicts and checksums.
+which are viewed as Ethernet from 14 bytes before their IPv4 packet (`civic.links`).
+`read_pcap` returns a `Capture` holding the file's bytes, each record's offset and a
+structured array of decoded message fields; `Capture.write` writes it back byte-identical
+except for patched verdicts and checksums.
 `scapy_layer.PlantMessage` is the scapy twin, for crafting and dissecting.
 """
 from __future__ import annotations
@@ -18,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
-from civic.links import LINK_VIEW, LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL2, SLL2_ETHERTYPE, ethertypes, link_view, viewed
+from civic.links import (LINK_VIEW, LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL2, SLL2_ETHERTYPE, ethertypes, link_view,
+                         viewed)
 from civic.pcapng import PCAPNG_MAGIC, PcapNgBlocks, write_pcapng
 
 DEFAULT_UDP_PORT = 50000

@@ -131,6 +131,15 @@ def test_what_civic_writes_as_pcap_it_writes_as_pcapng_where_asked(tmp_path):
     assert [read_pcap(tmp_path / "live.pcapng").frame(i) for i in range(len(frames))] == frames
 
 
+def test_replay_refuses_an_output_named_for_the_other_format(as_pcapng, tmp_path, capsys, trained_entries):
+    entries = tmp_path / "entries.json"
+    trained_entries.save(entries)
+    for src, dst in ((as_pcapng, "out.pcap"), (RECORDING, "out.pcapng")):
+        assert main(["replay", str(src), "-o", str(tmp_path / dst), "--entries", str(entries)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and "keeps" in err and not (tmp_path / dst).exists()
+
+
 FRAME = bytes(plant())
 
 

@@ -29,7 +29,23 @@ def output_paths(inputs: list[str], output: str) -> list[Path]:
     for i, o in zip(inputs, outs):
         if o.exists() and Path(i).exists() and o.samefile(i):
             raise CivicError(f"{o}: the output would overwrite its input")
+        _same_format(i, o)
     return outs
+
+
+def _same_format(src: str, dst: Path) -> None:
+    """A replay writes each recording back in its own format: an output named for the other
+    format is refused rather than written mislabelled."""
+    from civic.wire import is_pcapng
+
+    try:
+        with open(src, "rb") as fh:
+            ng = is_pcapng(fh.read(4))
+    except OSError:
+        return                                  # the reader says what is wrong with the input
+    want = ".pcapng" if ng else ".pcap"
+    if dst.suffix in (".pcap", ".pcapng") and dst.suffix != want:
+        raise CivicError(f"{dst}: civic replay keeps {src}'s format ({want[1:]}): name the output {want}")
 
 
 def _folder_outputs(inputs: list[str], out: Path) -> list[Path]:

@@ -22,20 +22,22 @@ LINK_VIEW = {LINKTYPE_ETHERNET: 0, LINKTYPE_LINUX_SLL: 2, LINKTYPE_LINUX_SLL2: 6
 SLL2_ETHERTYPE = -6
 
 
-def link_view(linktype: int, path: str) -> int:
-    """The shift from a frame's first byte to its Ethernet view (`LINK_VIEW`); a link type CIVIC
-    does not read is a one-line error."""
+def check_link(linktype: int, path: str) -> None:
+    """A link type CIVIC does not read (`LINK_VIEW`) is a one-line error."""
     if linktype not in LINK_VIEW:
         raise CivicError(f"{path}: link type {linktype} is neither Ethernet (1) nor a Linux cooked "
                          f"capture (113, 276)")
-    return LINK_VIEW[linktype]
 
 
-def viewed(offset: np.ndarray, caplen: np.ndarray, shift) -> tuple[np.ndarray, np.ndarray]:
-    """(offsets, captured lengths) of frames' Ethernet views, `shift` bytes in (a scalar or per frame)."""
-    if np.all(shift == 0):
-        return offset, caplen
-    return offset + shift, np.maximum(caplen.astype(np.int64) - shift, 0).astype(np.uint32)
+def link_views(offset: np.ndarray, caplen: np.ndarray,
+               linktype: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Frames of one link type: the offsets and captured lengths of their Ethernet views, and
+    each one's link type (None on Ethernet, whose frames are their own views)."""
+    shift = LINK_VIEW[linktype]
+    if not shift:
+        return offset, caplen, None
+    return (offset + shift, np.maximum(caplen.astype(np.int64) - shift, 0).astype(np.uint32),
+            np.full(len(offset), linktype, np.uint16))
 
 
 def ethertypes(head: np.ndarray, buf: np.ndarray, offset: np.ndarray, link: np.ndarray | None) -> np.ndarray:

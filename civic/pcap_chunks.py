@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
-from civic.links import LINK_VIEW, LINKTYPE_ETHERNET, ethertypes, viewed
+from civic.links import LINK_VIEW, ethertypes, link_views
 from civic.pcapng import PCAPNG_HEAD, PcapNgBlocks, packet_blocks
 from civic.wire import (DEFAULT_PLANT_PREFIX, DEFAULT_UDP_PORT, PCAP_HEADER, frame_heads, frame_kinds, is_pcapng,
                         pcap_header, record_offsets, record_times)
@@ -113,11 +113,9 @@ class PcapChunks:
                     chunk = Chunk(data, end, offset, caplen, self.udp_port, self.plant_prefix, t=t, link=link)
                 else:
                     rec, caplen, end = record_offsets(memoryview(data), self.order, 0, self.path, final, base)
-                    view = LINK_VIEW[self.linktype]
-                    offset, caplen = viewed(rec + RECORD_HEADER, caplen, view)
-                    link = None if self.linktype == LINKTYPE_ETHERNET else np.full(len(rec), self.linktype, np.uint16)
+                    offset, caplen, link = link_views(rec + RECORD_HEADER, caplen, self.linktype)
                     chunk = Chunk(data, end, offset, caplen, self.udp_port, self.plant_prefix,
-                                  self.order, self.frac, view, link=link)
+                                  self.order, self.frac, LINK_VIEW[self.linktype], link=link)
                 if end:
                     yield chunk
                 if final:

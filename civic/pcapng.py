@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
-from civic.links import LINKTYPE_ETHERNET, link_view, viewed
+from civic.links import LINKTYPE_ETHERNET, check_link, link_views
 
 PCAPNG_MAGIC = 0x0A0D0D0A             # a Section Header Block's type: the file's first 4 bytes
 BYTE_ORDER_MAGIC = 0x1A2B3C4D         # as read little-endian; 0x4D3C2B1A: the section is big-endian
@@ -77,13 +77,14 @@ class PcapNgBlocks:
                 head = np.ndarray((k, 6), self.order + "u4", arr, pos, (length, 4))    # type .. captured length
                 same = (head[:, 0] == EPB) & (head[:, 1] == length) & (head[:, 2] == head[0, 2])
                 n = int(np.argmin(same)) if not same.all() else k
-                t, link = self._times(head[:n], at)
-                offset, caplen = viewed(pos + 28 + length * np.arange(n, dtype=np.int64),
-                                        head[:n, 5].astype(np.uint32), link_view(link, self.path))
+                t, linktype = self._times(head[:n], at)
+                check_link(linktype, self.path)
+                offset, caplen, link = link_views(pos + 28 + length * np.arange(n, dtype=np.int64),
+                                                  head[:n, 5].astype(np.uint32), linktype)
                 offsets.append(offset)
                 caplens.append(caplen)
                 times.append(t)
-                links.append(np.full(n, link, np.uint16))
+                links.append((n, link))
                 pos += n * length
                 look = look * 2 if n == k else 64
                 continue
@@ -95,9 +96,9 @@ class PcapNgBlocks:
             pos += length
         if not offsets:
             return np.zeros(0, np.int64), np.zeros(0, np.uint32), np.zeros(0, np.float64), None, pos
-        link = np.concatenate(links)
-        return (np.concatenate(offsets), np.concatenate(caplens), np.concatenate(times),
-                None if np.all(link == LINKTYPE_ETHERNET) else link, pos)
+        link = None if all(k is None for _, k in links) else np.concatenate(
+            [np.full(n, LINKTYPE_ETHERNET, np.uint16) if k is None else k for n, k in links])
+        return np.concatenate(offsets), np.concatenate(caplens), np.concatenate(times), link, pos
 
     def _times(self, head: np.ndarray, at: int) -> tuple[np.ndarray, int]:
         """(capture times in s, link type) of a run of packet blocks on one interface (their

@@ -19,8 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from civic.errors import CivicError
-from civic.links import (LINK_VIEW, LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL2, SLL2_ETHERTYPE, ethertypes, link_view,
-                         viewed)
+from civic.links import LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL2, SLL2_ETHERTYPE, check_link, ethertypes, link_views
 from civic.pcapng import PCAPNG_MAGIC, PcapNgBlocks, write_pcapng
 
 DEFAULT_UDP_PORT = 50000
@@ -230,7 +229,7 @@ def pcap_header(head: bytes, path: str) -> tuple[str, int, int]:
         raise CivicError(f"{path}: not a pcap file (magic 0x{magic:08x})")
     order, frac = PCAP_MAGICS[magic]
     linktype = struct.unpack_from(order + "I", head, 20)[0] & 0x0FFFFFFF
-    link_view(linktype, path)
+    check_link(linktype, path)
     return order, frac, linktype
 
 
@@ -313,9 +312,8 @@ def read_pcap(path: str | Path, udp_port: int = DEFAULT_UDP_PORT,
     else:
         order, frac, linktype = pcap_header(bytes(data[:24]), path)
         rec, caplen, _ = record_offsets(memoryview(data), order, 24, path)
-        offset, caplen = viewed(rec + 16, caplen, LINK_VIEW[linktype])
+        offset, caplen, link = link_views(rec + 16, caplen, linktype)
         t = record_times(np.frombuffer(data, np.uint8), rec, order, frac)
-        link = None if linktype == LINKTYPE_ETHERNET else np.full(len(rec), linktype, np.uint16)
     messages = decode_frames(data, offset, caplen, udp_port, plant_prefix, link)
     messages["t"] = t
     return Capture(data=data, offset=offset, caplen=caplen, messages=messages, path=path, link=link)

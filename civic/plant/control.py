@@ -454,6 +454,8 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     sens_of = {s.tank: j for j, s in enumerate(model.sensors)}
     sidx = [sens_of.get(n_) for n_ in CONTROLLED]
     qsens = [model.sensors[j] for j in sidx] if None not in sidx else None
+    lo3, hi3 = ([-np.inf if s.min is None else s.min for s in qsens], [np.inf if s.max is None else s.max for s in qsens]) \
+        if qsens is not None else (None, None)
     op_i = 1
     phase, phase_t0, test = "setpoints", 0.0, None
     log = [(0.0, "setpoints", [float(v) for v in sp])]
@@ -464,11 +466,12 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
         if k in switch:
             stepper.P = switch[k]
         X[k] = x
-        # measurement as the controller sees it (wire resolution)
+        # measurement as the controller sees it: the reading the wire carries (the sensor's
+        # characteristic, noise, wire resolution and clip), so a bent or clipped sensor is in the loop
         if qsens is not None:
-            y3 = np.array([(s.gain * (x[tidx[i]] if s.quantity == "volume" else x[tidx[i]] / model.tanks[tidx[i]].area)
-                            + s.offset_at(t) + eps[k, sidx[i]]) for i, s in enumerate(qsens)])
-            y3 = np.round(y3 * 1000.0) / 1000.0
+            y3 = np.array([s.read(x[tidx[i]] if s.quantity == "volume" else x[tidx[i]] / model.tanks[tidx[i]].area, t)
+                           + eps[k, sidx[i]] for i, s in enumerate(qsens)])
+            y3 = np.clip(np.round(y3 * 1000.0) / 1000.0, lo3, hi3)
         else:
             y3 = x[tidx]
         # supervisor

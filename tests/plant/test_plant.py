@@ -425,6 +425,28 @@ def test_closed_loop_mpc_tracks_setpoints(plant):
         assert np.max(np.abs(r.volumes.sum(axis=1) - 40.0)) < 1e-9
 
 
+def test_closed_loop_controller_sees_the_reading_the_wire_carries(plant):
+    """A bent or clipped sensor is in the loop: the controller holds the *reading* at its
+    setpoint (so a bent L1 holds the true volume elsewhere), and a reading clipped below the
+    setpoint never reaches it, so the controller fills T1 past the clip."""
+    from civic.plant.control import run_closed_loop
+
+    sched = [(0.0, "setpoints", [8.6, 7.6, 6.6])]
+    bent = plant.copy()
+    s = bent.find("sensor", "L1")
+    s.exponent, s.gain = 1.1, 5.0 ** -0.1          # reads 8.6 L at 8.17 L in the tank
+    clipped = plant.copy()
+    clipped.find("sensor", "L1").max = 8.3
+    for ctrl in ("mpc", "pi"):
+        r = run_closed_loop(bent, 90.0, controller=ctrl, seed=5, noise=False, schedule=sched, controller_model=plant)
+        assert abs(r.signals["L1"][-1] - 8.6) < 0.1, (ctrl, r.signals["L1"][-1])
+        assert abs(r.volumes[-1, 0] - s.invert(8.6)) < 0.1, (ctrl, r.volumes[-1, 0])
+        r = run_closed_loop(clipped, 90.0, controller=ctrl, seed=5, noise=False, schedule=sched,
+                            controller_model=plant)
+        assert r.signals["L1"].max() == 8.3
+        assert r.volumes[-1, 0] > 8.6 + 0.1, (ctrl, r.volumes[-1, 0])
+
+
 # ---- CLI ----------------------------------------------------------------------------------
 def test_cli_csv_equals_pcap_and_no_noise_is_deterministic(tmp_path, capsys):
     from civic.wire import read_pcap

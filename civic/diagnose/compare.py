@@ -136,12 +136,16 @@ class EquationError:
         # stay at that total less what the model lets out. This is the one check that sees a
         # constant offset on a sensor whose level drives no flow (a reservoir's)
         self.columns = model.tank_names + ([INVENTORY] if model.total_volume is not None else [])
-        # which balances a saturated tank's hidden volume spoils: fixed by the nominal model's links,
-        # so a candidate that adds a link (a leak, a spill) is judged on the rows its reference is
-        # judged on, not credited with the noise of the rows its link would hide
+        # which balances a saturated tank's hidden volume spoils: fixed by the nominal model's links
+        # and overflows (a tank clipped below its rim may be spilling: a sensor clip in the loop
+        # lets the controller fill it to the rim), so a candidate that adds a link (a leak, a
+        # spill) is judged on the rows its reference is judged on, not credited with the noise
+        # of the rows its link would hide
         tidx = {t.name: i for i, t in enumerate(model.tanks)}
         self.coupled = [(tidx[lk.from_], tidx[lk.to], lk.law == "bidirectional")
                         for lk in model.links if lk.to != OUTSIDE]
+        self.coupled += [(i, tidx[dst], False) for i in model._overflow_order()
+                         for dst, _ in model.tanks[i].overflow.targets() if dst != OUTSIDE]
         sensed = {}
         for s in model.sensors:
             if s.name in rec.signals and s.tank not in sensed:

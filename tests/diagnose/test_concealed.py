@@ -310,6 +310,24 @@ def test_heavy_tails_make_a_suspect(closed_loop_case, nominal):
     assert loc.flagged == [] and loc.suspect == ["T3"] and "T3" in loc.tanks
 
 
+def test_a_tank_spilling_while_its_sensor_clips_hides_the_balance_its_spill_feeds(nominal, sweep_draw):
+    """L1 clips at 9 L on the sweep's seed-1 plant, and the loop, seeing the clip, fills T1 to its
+    10 L rim under a 9.3 L setpoint: T1 spills into the reservoir while L1 reads 9. T1's volume is
+    unknown there, so is its spill, and the reservoir's balance in those windows carries no
+    information; counted, it asked for a T1 leak into T4 over exactly the spell (c = 0.074, a
+    second finding). The clip alone."""
+    from civic.plant.control import run_closed_loop
+    from civic.plant.simulate import Recording
+
+    plant = sweep_draw((1.0335, 1.0257, 1.0378, 1.0080))
+    plant.find("sensor", "L1").max = 9.0
+    res = run_closed_loop(plant, 600.0, controller="mpc", seed=1, noise=True, controller_model=nominal)
+    assert res.volumes[:, 0].max() >= nominal.tank("T1").rim_volume() - 1e-9     # the case spills
+    d = diagnose(nominal, Recording(res.t, res.signals, res.fields, "L1 clipped in the loop"))
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("sensor_saturation", "L1")]
+    assert d.final_all.mechanisms[0].values()["max"] == pytest.approx(9.0, abs=0.01)
+
+
 def test_effect_the_held_out_blocks_never_see_is_judged_with_the_blocks_swapped(closed_loop_case, nominal):
     """L1 stuck at 9.0 for 53 s, all of it in training blocks: the held-out blocks cannot judge
     it (4.6 % lower SSE there, from the calibration alone), so the model with and without it

@@ -150,13 +150,15 @@ SWEEP = {
     "valve_V1": ("valve_characteristic", "V1", (1.3, 1.5)),
     "valve_V2": ("valve_characteristic", "V2", (1.5,)),
     "saturation_L1": ("sensor_saturation", "L1", (9.0,)),
+    "saturation_L2": ("sensor_saturation", "L2", (8.0,)),
+    "saturation_L3": ("sensor_saturation", "L3", (7.0,)),
     # real-rig physics (issue #20): a flow law that is not Torricelli, a bent level sensor
     # (calibrated at 5 L), a pump dead zone, an overflow whose spill partly leaves the plant
     "flowlaw_pipe23": ("flow_law", "pipe23", (0.4, 0.55, 0.6)),     # q = c*|dh|**n, n instead of 0.5
     "flowlaw_V2": ("flow_law", "V2", (0.4, 0.45, 0.6, 0.7)),
     "flowlaw_V1": ("flow_law", "V1", (0.6,)),
     "sensorchar_L2": ("sensor_characteristic", "L2", (0.9, 1.05, 1.1)),  # y = 5**(1-n)*V**n
-    "sensorchar_L1": ("sensor_characteristic", "L1", (0.9, 1.05, 1.1)),   # T1 may sit at its rim
+    "sensorchar_L1": ("sensor_characteristic", "L1", (0.85, 0.9, 1.05, 1.1)),   # 0.85: the loop fills T1 to its rim
     "sensorchar_L3": ("sensor_characteristic", "L3", (1.1,)),
     "sensorchar_L4": ("sensor_characteristic", "L4", (0.85,)),  # the reservoir: reads 2-5 L low
     "deadzone_P1": ("pump_dead_zone", "P1", (0.03, 0.05)),     # no flow below this command
@@ -295,7 +297,7 @@ def sweep_case(job) -> dict:
     elif case.startswith("spill"):
         active = bool(np.max(res.volumes[:, nominal.tank_names.index(want[1])]) > SPILL_RIM + 0.05)
     elif case.startswith("saturation"):
-        active = bool(np.any(res.signals["L1"] >= mag - 1e-9))
+        active = bool(np.any(res.signals[want[1]] >= mag - 1e-9))
     named = [(f["mechanism"].name, f["mechanism"].component) for f in d.findings]
     # right: the first finding names the mechanism and component, and nothing else is found
     ok = (not d.mismatch) if want[0] is None or not active else named[:1] == [want] and len(named) == 1

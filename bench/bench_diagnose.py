@@ -161,6 +161,7 @@ SWEEP = {
     "sensorchar_L1": ("sensor_characteristic", "L1", (0.85, 0.9, 1.05, 1.1)),   # 0.85: the loop fills T1 to its rim
     "sensorchar_L3": ("sensor_characteristic", "L3", (1.1,)),
     "sensorchar_L4": ("sensor_characteristic", "L4", (0.85,)),  # the reservoir: reads 2-5 L low
+    "sensorquad_L2": ("sensor_characteristic", "L2", (0.02,)),  # y = V + c*(V - 5)**2: high both ways from 5 L
     "deadzone_P1": ("pump_dead_zone", "P1", (0.03, 0.05)),     # no flow below this command
     "split_T1": ("overflow", "T1", (0.2, 0.5, 0.8)),            # rim 9 L, this share into T4, rest out
     "split_T2": ("overflow", "T2", (0.5,)),                     # rim 8.5 L (bundled setpoints), idem
@@ -190,7 +191,7 @@ SPELL = (200.0, 400.0)  # s: a fault switched on, then off again
 REPAIRED_AT = 300.0  # s: a leak from the start repaired
 EXCESS_BAR = 3.0  # sensor noises: an effect the calibrated datasheet replays closer than this is below the bar
 
-NEW_KINDS = ("flowlaw", "sensorchar", "deadzone", "split")
+NEW_KINDS = ("flowlaw", "sensorchar", "sensorquad", "deadzone", "split")
 
 
 SPILL_RIM = 8.5    # L: the rim of the finite spill cases
@@ -253,6 +254,9 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
         s = m.find("sensor", comp)
         s.exponent = mag
         s.gain = 5.0 ** (1.0 - mag)          # calibrated at 5 L: exact there, bent elsewhere
+    elif kind == "sensorquad":
+        s = m.find("sensor", comp)
+        s.curvature, s.pivot = mag, 5.0
     elif kind == "deadzone":
         m.find("pump", comp).input_offset = mag
     elif kind == "split":

@@ -55,7 +55,8 @@ def _sensor_wire(model: PlantModel, tank: str) -> str:
     s = next((s for s in model.sensors if s.tank == tank and s.wire), None)
     if s is None:
         raise CivicError(f"plant model {model.name}: tank {tank} has no sensor on the wire")
-    if s.quantity != "volume" or s.gain != 1.0 or s.offset != 0.0 or s.exponent != 1.0 or s.wire_scale != 1000.0:
+    if s.quantity != "volume" or s.gain != 1.0 or s.offset != 0.0 or s.exponent != 1.0 or s.curvature \
+            or s.wire_scale != 1000.0:
         raise CivicError(f"plant model {model.name}: sensor {s.name} is not a plain volume sensor in mL "
                          f"(a balance monitor keys its flow tables on wire values)")
     return s.wire

@@ -92,15 +92,16 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
     else:
         # equation error: interleaved held-out blocks visit levels the training blocks may not,
         # so a sensor map is fitted with its gain tied at the readings' middle (bend and offset
-        # free) and, as a variant, through the model's zero (bend and gain free: a sensor
-        # calibrated far from the readings' middle): the three-parameter map slid along its flat
-        # valley and extrapolated wildly there (held-out +200 BIC on a bent L2). The free run
-        # keeps the general map
+        # free) and, as variants, through the model's zero (bend and gain free: a sensor
+        # calibrated far from the readings' middle) and as a quadratic about the readings' middle
+        # (a sensor bent both ways from its calibration point, which no power map follows): the
+        # three-parameter power map slid along its flat valley and extrapolated wildly there
+        # (held-out +200 BIC on a bent L2). The free run keeps the general map
         candidates = [v for c in candidates
                       # a link's flow law as an exponent only: the added-linear-term form named
                       # the same links on every case tried, and doubled the flow-law fits
                       if not (c.name == "flow_law" and c.fixed.get("form") == "linear")
-                      for v in ([c.tied(), c.through_zero()] if c.name == "sensor_characteristic" and
+                      for v in ([c.tied(), c.through_zero(), c.quadratic()] if c.name == "sensor_characteristic" and
                                 "offset" in c.params else [c])]
         chosen, current = forward_select(prob, diag, candidates, base, progress)
         if not chosen and not engine.short and not diag.negligible:   # the balances' rest is negligible

@@ -131,6 +131,8 @@ class Sensor:
     drift: float = 0.0      # per second, added from `since` on: a sensor that drifts (fouling, ageing)
     since: float = 0.0      # s from the first sample
     until: float = math.inf  # a step ends here (a knocked sensor set right again, a glitch over)
+    curvature: float = 0.0  # a quadratic term: y = gain*q + curvature*(q - pivot)**2 + offset (exponent 1)
+    pivot: float = 0.0
 
     @property
     def moves(self) -> bool:
@@ -149,6 +151,8 @@ class Sensor:
 
     def read(self, q, t=None):
         """The reading for a quantity at times `t` (before noise, resolution and clip)."""
+        if self.curvature:
+            return self.gain * q + self.curvature * (np.asarray(q, float) - self.pivot) ** 2 + self.offset_at(t)
         if self.exponent == 1.0:
             return self.gain * q + self.offset_at(t)
         return self.gain * np.maximum(q, 0.0) ** self.exponent + self.offset_at(t)
@@ -158,6 +162,11 @@ class Sensor:
         gain is 0)."""
         if not self.gain:
             return 0.0 * np.asarray(y, float)
+        if self.curvature:
+            # c u^2 + g u = r with u = q - pivot: the root on the rising branch (g + 2 c u > 0)
+            g, c = self.gain, self.curvature
+            r = np.asarray(y, float) - self.offset_at() - g * self.pivot
+            return self.pivot + 2.0 * r / (g + np.sqrt(np.maximum(g * g + 4.0 * c * r, 0.0)))
         q = (np.asarray(y, float) - self.offset_at()) / self.gain
         if self.exponent == 1.0:
             return q
@@ -169,7 +178,7 @@ _SECTIONS = (("tank", "tanks", Tank), ("pump", "pumps", Pump), ("valve", "valves
 _FLOAT_FIELDS = {"area", "capacity", "gain", "dead_time", "closure", "min_source_volume", "head_coeff",
                  "input_offset", "tau", "coeff", "exponent", "min_level", "offset", "noise_sigma",
                  "resolution", "min", "max", "wire_scale", "level", "volume", "fraction", "onset", "since",
-                 "until", "shift", "drift"}
+                 "until", "shift", "drift", "curvature", "pivot"}
 
 
 def _key(name: str) -> str:
@@ -209,7 +218,7 @@ def _dump(obj) -> dict:
         v = getattr(obj, f.name)
         if v is None or (isinstance(obj, Overflow) and f.name in ("fraction", "rest") and v == f.default) \
                 or (isinstance(obj, Sensor) and f.name == "exponent" and v == f.default) \
-                or (f.name in ("onset", "since", "until", "shift", "drift") and v == f.default):
+                or (f.name in ("onset", "since", "until", "shift", "drift", "curvature", "pivot") and v == f.default):
             continue
         if isinstance(v, Overflow):
             v = _dump(v)
@@ -428,6 +437,10 @@ class PlantModel:
         for s in self.sensors:
             if not (s.exponent > 0 and math.isfinite(s.exponent)):
                 raise CivicError(f"{where}: sensor {s.name}: exponent must be > 0")
+            if not (math.isfinite(s.curvature) and math.isfinite(s.pivot)):
+                raise CivicError(f"{where}: sensor {s.name}: curvature and pivot must be finite")
+            if s.curvature and s.exponent != 1.0:
+                raise CivicError(f"{where}: sensor {s.name}: a quadratic term (curvature) or an exponent, not both")
             if not (s.since >= 0 and math.isfinite(s.since)):
                 raise CivicError(f"{where}: sensor {s.name}: since must be a time >= 0 s")
             if not math.isfinite(s.drift):

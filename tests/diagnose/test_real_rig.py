@@ -395,3 +395,16 @@ def test_leak_at_the_replay_bar_is_named_with_its_destination(nominal):
     assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("leak", "T1")]
     p = d.final_all.mechanisms[0].values()
     assert p["to"] == "outside" and 0.0003 < p["c"] < 0.0007
+
+
+def test_a_sensor_bent_both_ways_from_its_calibration_point_is_named_by_its_quadratic_map(nominal):
+    """L2 reads V + 0.02 (V - 5)**2 (high on both sides of 5 L; 4 sensor noises of replay), MPC,
+    one bench draw of the calibration spread. No power map follows it below 5 L: its error moved
+    the V1 and pipe23 flows computed from L2, and a V1 valve characteristic was named instead. The
+    quadratic variant names L2, with the curvature it has."""
+    plant = _bench_draw(nominal, 0.31088236, 0.25301483, 0.11862545, 0.30681965)
+    s = plant.find("sensor", "L2")
+    s.curvature, s.pivot = 0.02, 5.0
+    d = diagnose(nominal, _closed_loop(nominal, plant, 600.0, "mpc", 162))
+    assert [f["mechanism"].label for f in d.findings] == ["sensor_characteristic(L2, quadratic)"]
+    assert d.final_all.mechanisms[0].values()["curvature"] == pytest.approx(0.02, abs=0.008)

@@ -267,6 +267,26 @@ def test_sensor_characteristic_reads_inverts_and_round_trips(tmp_path):
         m.validate()
 
 
+def test_quadratic_sensor_reads_inverts_and_round_trips(tmp_path):
+    """y = gain*q + curvature*(q - pivot)**2 + offset: read, inverted on its rising branch (also
+    below the pivot, where the reading bends up again), kept by the model file, refused beside an
+    exponent."""
+    m = single_tank(coeff=0.0, gain=0.3)
+    s = m.sensors[0]
+    s.gain, s.offset, s.curvature, s.pivot = 1.1, 0.2, 0.03, 5.0
+    q = np.array([0.5, 2.0, 5.0, 9.0])
+    y = s.read(q)
+    np.testing.assert_allclose(y, 1.1 * q + 0.03 * (q - 5.0) ** 2 + 0.2, rtol=1e-12)
+    np.testing.assert_allclose(s.invert(y), q, rtol=1e-9)
+    m.to_toml(tmp_path / "m.toml")
+    back = PlantModel.from_toml(tmp_path / "m.toml").sensors[0]
+    assert (back.curvature, back.pivot) == (0.03, 5.0)
+    assert "curvature" not in single_tank().to_toml().split("[[sensor]]")[1]
+    s.exponent = 1.2
+    with pytest.raises(CivicError, match="curvature"):
+        m.validate()
+
+
 def _loop_with_l3_moved(duration, **moved):
     """The four-tank loop without noise, as is and with L3's sensor edited (`moved`, from
     `since` on): both runs and the sample index of `since`."""

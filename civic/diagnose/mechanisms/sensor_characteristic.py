@@ -2,7 +2,8 @@
 
 Beyond `sensor_offset` (a shift of a linear map): a level sensor (pressure cell,
 float, ultrasound) whose reading bends with the level. Offset, gain (a factor on the
-model's) and exponent are fitted.
+model's) and exponent are fitted; or, as the quadratic variant, gain, offset and a
+curvature about the readings' middle, y = gain*q + curvature*(q - pivot)**2 + offset.
 """
 from __future__ import annotations
 
@@ -26,6 +27,13 @@ class SensorCharacteristic(Mechanism):
         self.edit_sensor(model.find("sensor", self.component), p)
 
     def edit_sensor(self, s, p):
+        if "curvature" in p:
+            s.exponent = 1.0
+            s.curvature = float(self.fixed.get("base_gain", 1.0)) * float(p["curvature"])
+            s.pivot = float(self.fixed.get("q_mid", 0.0))
+            s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
+            s.gain = float(self.fixed.get("base_gain", 1.0)) * float(p["gain"])
+            return
         s.exponent = float(p["exponent"])
         s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
         g = float(p["gain"]) if "gain" in p else self._tied_gain(p)
@@ -73,8 +81,8 @@ class SensorCharacteristic(Mechanism):
 
     @property
     def label(self) -> str:
-        how = "" if "offset" in self.params else ", through zero" if "gain" in self.params else \
-            ", bend through the rim"
+        how = ", quadratic" if "curvature" in self.params else "" if "offset" in self.params else \
+            ", through zero" if "gain" in self.params else ", bend through the rim"
         return f"{self.name}({self.component}{how})"
 
     def tied(self) -> "SensorCharacteristic":
@@ -88,12 +96,23 @@ class SensorCharacteristic(Mechanism):
         seen at 13-22 L, got exponent 0.73 and an offset of -2.9 L."""
         return self._without("offset")
 
+    def quadratic(self) -> "SensorCharacteristic":
+        """The three-parameter quadratic variant about the readings' middle (gain, curvature,
+        offset): a sensor bent both ways from its calibration point, which no power map follows."""
+        rng = self.fixed.get("range")
+        span = max(float(rng[1] - rng[0]) if rng else 1.0, 1e-6)
+        return type(self)(self.component, {"gain": 1.0, "curvature": 0.0, "offset": self.params.get("offset", 0.0)},
+                          {"gain": self.bounds["gain"], "curvature": (-1.0 / span, 1.0 / span),
+                           "offset": self.bounds["offset"]}, dict(self.fixed))
+
     def _without(self, name: str) -> "SensorCharacteristic":
         return type(self)(self.component, {k: v for k, v in self.params.items() if k != name},
                           {k: v for k, v in self.bounds.items() if k != name}, dict(self.fixed))
 
     def values(self, theta=None) -> dict:
         out = super().values(theta)
+        if "curvature" in out:
+            return out
         if "exponent" in out:
             out.setdefault("offset", 0.0)
         if "gain" not in out and "exponent" in out:
@@ -114,10 +133,18 @@ class SensorCharacteristic(Mechanism):
             band = INVENTORY_BAND * INVENTORY_SPREAD * model.total_volume
             if float(np.max(np.abs(q1 - q0))) * scale <= band:
                 return True
+        if "curvature" in p:
+            rng = self.fixed.get("range") or (0.0, 1.0)
+            bend = abs(p["curvature"]) * (0.5 * (rng[1] - rng[0])) ** 2
+            return bend < 2.0 * max(s.noise_sigma, s.resolution) and abs(p["gain"] - 1.0) < 0.03 and \
+                abs(p["offset"]) < max(2.0 * s.noise_sigma, 2.0 * s.resolution)
         return abs(p["exponent"] - 1.0) < 0.03 and abs(p["gain"] - 1.0) < 0.03 and \
             abs(p["offset"]) < max(2.0 * s.noise_sigma, 2.0 * s.resolution)
 
     def describe(self, p):
+        if "curvature" in p:
+            return (f"{self.component} = {p['gain']:.3g}*gain*level {p['curvature']:+.3g}*(level - "
+                    f"{self.fixed.get('q_mid', 0.0):.3g})**2 {p['offset']:+.3g}")
         return f"{self.component} = {p['gain']:.3g}*gain*level**{p['exponent']:.3g} {p['offset']:+.3g}"
 
 

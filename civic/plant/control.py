@@ -454,8 +454,9 @@ def run_closed_loop(model: PlantModel, duration: float, controller: str = "mpc",
     sens_of = {s.tank: j for j, s in enumerate(model.sensors)}
     sidx = [sens_of.get(n_) for n_ in CONTROLLED]
     qsens = [model.sensors[j] for j in sidx] if None not in sidx else None
-    lo3, hi3 = ([-np.inf if s.min is None else s.min for s in qsens], [np.inf if s.max is None else s.max for s in qsens]) \
-        if qsens is not None else (None, None)
+    if qsens is not None:       # the controlled sensors' clip (the wire's reading saturates)
+        lo3 = [-np.inf if s.min is None else s.min for s in qsens]
+        hi3 = [np.inf if s.max is None else s.max for s in qsens]
     op_i = 1
     phase, phase_t0, test = "setpoints", 0.0, None
     log = [(0.0, "setpoints", [float(v) for v in sp])]

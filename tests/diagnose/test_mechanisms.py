@@ -129,3 +129,16 @@ def test_backward_elimination_keeps_a_parameter_free_finding_on_a_tie():
     assert _removable(law, tie) and not _removable(clip, tie)
     assert not _removable(clip, 1.0 - 0.5 * FIXED_ABLATION) and _removable(clip, 1.0 - 1.5 * FIXED_ABLATION)
     assert not _removable(law, 1.0 + 2.0 * MIN_ABLATION)
+
+
+def test_a_sensor_map_already_bent_is_not_bent_again():
+    """A model improved by a quadratic map (written by --write-model) diagnosed again: no power map
+    is offered on top of that sensor's curvature (the model file cannot hold both)."""
+    from civic.diagnose.locate import Localisation
+
+    m = PlantModel.from_toml(MODEL.parent / "plant.toml")
+    loc = Localisation("equation", ["T2"], tanks=["T1", "T2"], signals_present=["L1", "L2"],
+                      signal_span={"L1": 5.0, "L2": 5.0}, signal_range={"L1": (4.0, 9.0), "L2": (3.5, 8.5)})
+    assert [c.component for c in SensorCharacteristic.candidates(m, loc)] == ["L1", "L2"]
+    m.find("sensor", "L2").curvature = 0.02
+    assert [c.component for c in SensorCharacteristic.candidates(m, loc)] == ["L1"]

@@ -27,17 +27,15 @@ class SensorCharacteristic(Mechanism):
         self.edit_sensor(model.find("sensor", self.component), p)
 
     def edit_sensor(self, s, p):
+        base_gain = float(self.fixed.get("base_gain", 1.0))
+        s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
         if "curvature" in p:
-            s.exponent = 1.0
-            s.curvature = float(self.fixed.get("base_gain", 1.0)) * float(p["curvature"])
-            s.pivot = float(self.fixed.get("q_mid", 0.0))
-            s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
-            s.gain = float(self.fixed.get("base_gain", 1.0)) * float(p["gain"])
+            s.exponent, s.pivot = 1.0, float(self.fixed.get("q_mid", 0.0))
+            s.curvature = base_gain * float(p["curvature"])
+            s.gain = base_gain * float(p["gain"])
             return
         s.exponent = float(p["exponent"])
-        s.offset = float(self.fixed.get("base", 0.0)) + float(p["offset"])
-        g = float(p["gain"]) if "gain" in p else self._tied_gain(p)
-        s.gain = float(self.fixed.get("base_gain", 1.0)) * g
+        s.gain = base_gain * (float(p["gain"]) if "gain" in p else self._tied_gain(p))
 
     def _tied_gain(self, p) -> float:
         """The gain factor of the tied maps. Bend and offset free: the map equals the model's at
@@ -56,8 +54,8 @@ class SensorCharacteristic(Mechanism):
     def candidates(cls, model, loc):
         out = []
         for s in model.sensors:
-            if s.name not in loc.signals_present or s.tank not in loc.tanks or s.exponent != 1.0:
-                continue
+            if s.name not in loc.signals_present or s.tank not in loc.tanks or s.exponent != 1.0 or s.curvature:
+                continue        # a map already bent (a model improved before) is not bent again
             span = max(loc.signal_span.get(s.name, 1.0), 1e-6)
             rng = getattr(loc, "signal_range", {}).get(s.name)
             if rng is not None and rng[1] - rng[0] < STILL_SIGMAS * max(s.noise_sigma, s.resolution):
@@ -135,10 +133,10 @@ class SensorCharacteristic(Mechanism):
                 return True
         if "curvature" in p:
             rng = self.fixed.get("range") or (0.0, 1.0)
-            bend = abs(p["curvature"]) * (0.5 * (rng[1] - rng[0])) ** 2
-            return bend < 2.0 * max(s.noise_sigma, s.resolution) and abs(p["gain"] - 1.0) < 0.03 and \
-                abs(p["offset"]) < max(2.0 * s.noise_sigma, 2.0 * s.resolution)
-        return abs(p["exponent"] - 1.0) < 0.03 and abs(p["gain"] - 1.0) < 0.03 and \
+            straight = abs(p["curvature"]) * (0.5 * (rng[1] - rng[0])) ** 2 < 2.0 * max(s.noise_sigma, s.resolution)
+        else:
+            straight = abs(p["exponent"] - 1.0) < 0.03
+        return straight and abs(p["gain"] - 1.0) < 0.03 and \
             abs(p["offset"]) < max(2.0 * s.noise_sigma, 2.0 * s.resolution)
 
     def describe(self, p):

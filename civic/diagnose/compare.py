@@ -52,6 +52,7 @@ RIM_TOL = 0.03       # L: a measured volume this close below the rim counts as a
 # enough on a tank nearing its datasheet rim to bend a fitted sensor map (L1 n = 1.1 fitted 1.155)
 RIM_SIGMAS = 4.0
 RIM_GAP = 7          # samples: shorter dips below that band are noise, not the tank leaving its rim
+STARVED_ITERATIONS = 50   # secant passes of a starving pump and the spill it feeds (`flows`)
 CACHE_ENTRIES = 256   # parameter-dependent pieces an equation error keeps (`EquationError._cached`)
 
 
@@ -267,26 +268,105 @@ class EquationError:
 
         The flows are the simulator's own right-hand side (`civic.plant.simulate.flows`),
         evaluated at both ends of every sample interval with the command held over it
-        (trapezoid rule)."""
-        tidx = {t.name: i for i, t in enumerate(model.tanks)}
-        n1 = self.n - 1
+        (trapezoid rule). A pump whose source is down to its dry-run level passes what flows
+        into the source (`_starved`)."""
         VV, AA, CC = self._interval_ends(model, V)
+        F, out, pumped = self._interval_flows(model, VV, AA, CC)
+        starved = self._starved(model, V, VV, AA, CC)
+        at_rim = self._at_rim(model, V)
+        if not starved:
+            return self._spill(model, V, F, out, at_rim)
+        # the pumps' flows and the spill into their sources depend on each other (a tank at its
+        # rim spills what the starving pump brings, and part of it may fall back into the
+        # source): their fixed point, which the pump's full flow bounds, by secant steps (the
+        # map is piecewise linear, its slope the share that falls back; plain iteration took
+        # ten passes at a 20 % share)
+        tidx = {t.name: i for i, t in enumerate(model.tanks)}
+        q = {i: pumped[rows, i] for i, rows, _ in starved}
+        prev = None
+        for _ in range(STARVED_ITERATIONS):
+            Fq = F.copy()
+            for i, rows, _ in starved:
+                p = model.pumps[i]
+                moved = q[i] - pumped[rows, i]
+                Fq[rows, tidx[p.from_]] -= moved
+                if p.to in tidx:
+                    Fq[rows, tidx[p.to]] += moved
+            Fs, outs = self._spill(model, V, Fq, out, at_rim)
+            g = {i: np.clip(Fs[rows, tidx[model.pumps[i].from_]] + q[i], 0.0, full) for i, rows, full in starved}
+            if max(float(np.max(np.abs(g[i] - q[i]))) for i in q) < 1e-12:
+                break
+            nxt = {}
+            for i, _, full in starved:
+                step = g[i] - q[i]
+                if prev is not None:
+                    dq = q[i] - prev[0][i]
+                    moved = np.abs(dq) > 1e-15
+                    slope = np.where(moved, (g[i] - prev[1][i]) / np.where(moved, dq, 1.0), 0.0)
+                    step = step / (1.0 - np.clip(slope, 0.0, 1.0 - 1e-6))
+                nxt[i] = np.clip(q[i] + step, 0.0, full)
+            prev, q = (q, g), nxt
+        return Fs, outs
+
+    def _interval_flows(self, model: PlantModel, VV, AA, CC, rows=None):
+        """Per interval (or those in the index array `rows`): the tanks' net volume changes
+        (spill aside), what goes outside, and what each pump delivers (litres; the trapezoid over
+        the interval's two ends)."""
+        n1 = self.n - 1
+        at = np.arange(n1) if rows is None else rows
+        ends = np.concatenate((at, at + n1))
+        if rows is not None:
+            VV, AA, CC = VV[ends], AA[ends], CC[ends]
         phases = model.phases()
         if len(phases) == 1:
             fl = plant_flows(model, VV, AA, CC)
-            net, outside = fl.net, fl.outside
+            net, outside, pumps = fl.net, fl.outside, fl.pumps
         else:
             # a closure from its onset on: each interval with the model in force at its start
             starts = [int(round(t0 / self.dt)) for t0, _ in phases]
-            which = np.tile(np.searchsorted(starts, np.arange(n1), side="right") - 1, 2)
-            net, outside = np.zeros((2 * n1, len(model.tanks))), np.zeros(2 * n1)
+            which = np.tile(np.searchsorted(starts, at, side="right") - 1, 2)
+            net, outside = np.zeros((ends.size, len(model.tanks))), np.zeros(ends.size)
+            pumps = np.zeros((ends.size, len(model.pumps)))
             for p, (_, m) in enumerate(phases):
-                rows = which == p
-                if rows.any():
-                    fl = plant_flows(m, VV[rows], AA[rows], CC[rows])
-                    net[rows], outside[rows] = fl.net, fl.outside
-        F = 0.5 * (net[:n1] + net[n1:]) * self.dt
-        out = 0.5 * (outside[:n1] + outside[n1:]) * self.dt
+                sel = which == p
+                if sel.any():
+                    fl = plant_flows(m, VV[sel], AA[sel], CC[sel])
+                    net[sel], outside[sel], pumps[sel] = fl.net, fl.outside, fl.pumps
+        half, k = 0.5 * self.dt, at.size
+        return (half * (net[:k] + net[k:]), half * (outside[:k] + outside[k:]),
+                half * (pumps[:k] + pumps[k:]))
+
+    def _starved(self, model: PlantModel, V: np.ndarray, VV, AA, CC) -> list:
+        """Per pump whose source reads its dry-run level at both ends of some intervals (within
+        the reading's noise band): (pump index, those intervals, its full flow over them). There
+        it sucks air in bursts and passes, on average, what flows into its source; the measured
+        volume cannot say which burst a sample saw (a spill to outside fed by such a pump was
+        counted at the pump's full flow: the inventory took the difference for an L4 offset)."""
+        tidx = {t.name: i for i, t in enumerate(model.tanks)}
+        out = []
+        for i, p in enumerate(model.pumps):
+            if p.from_ not in tidx or p.min_source_volume <= 0:
+                continue
+            src = tidx[p.from_]
+            low = V[:, src] <= p.min_source_volume + self.rim_tol[p.from_]
+            rows = np.flatnonzero(low[:-1] & low[1:])
+            if rows.size:
+                lifted = VV.copy()
+                lifted[:, src] = np.maximum(lifted[:, src], p.min_source_volume)
+                out.append((i, rows, self._interval_flows(model, lifted, AA, CC, rows)[2][:, i]))
+        return out
+
+    def _at_rim(self, model: PlantModel, V: np.ndarray) -> dict:
+        """Per overflowing tank: the intervals that end with it at its rim (within the reading's
+        noise band, short dips closed)."""
+        return {i: closed_gaps(V[1:, i] >= model.tanks[i].rim_volume() - self.rim_tol[model.tanks[i].name], RIM_GAP)
+                for i in model._overflow_order()}
+
+    def _spill(self, model: PlantModel, V: np.ndarray, F: np.ndarray, out: np.ndarray, at_rim: dict):
+        """The interval volume changes `F` and outside accumulation `out` with every overflow's
+        instantaneous spill (keeping its tank at the rim, `_at_rim`) moved to where it goes."""
+        tidx = {t.name: i for i, t in enumerate(model.tanks)}
+        F = F.copy()
 
         def move(src, dst, q):
             nonlocal out
@@ -296,14 +376,12 @@ class EquationError:
             else:
                 F[:, tidx[dst]] += q
 
-        # overflow: instantaneous spill keeping the tank at its rim
         for i in model._overflow_order():
             tk = model.tanks[i]
             rim = tk.rim_volume()
             pre = V[:-1, i] + F[:, i]
-            at_rim = closed_gaps(V[1:, i] >= rim - self.rim_tol[tk.name], RIM_GAP)
             # at the rim every net inflow spills (measured noise is not rectified into spill)
-            s = np.where(at_rim, np.maximum(F[:, i], 0.0), np.maximum(pre - rim, 0.0))
+            s = np.where(at_rim[i], np.maximum(F[:, i], 0.0), np.maximum(pre - rim, 0.0))
             for dest, share in tk.overflow.targets():
                 move(tk.name, dest, share * s)
         return F, out

@@ -231,6 +231,28 @@ def test_leak_that_drains_the_reservoir_is_not_blamed_on_the_pump(closed_loop_ca
     assert p["to"] == "outside" and abs(p["c"] - 0.02) < 0.1 * 0.02, p
 
 
+def test_spill_out_of_the_plant_fed_by_a_starving_pump_adds_no_reservoir_offset(sweep_draw, nominal):
+    """T1 spills above 9 L, 20 % into T4 and the rest out of the plant, while the PI loop holds
+    it at its rim (the sweep's seed-153 draw): from ~420 s to ~440 s the reservoir is down to the
+    pump's 1 L minimum and T1 spills what the starving pump brings, which is what flows into T4, not the
+    command's flow. Counted at the command's flow, the water lost outside was too much and the
+    inventory took the difference for `sensor_offset L4` (+0.27 L from 420 s), appended to the
+    right finding."""
+    from civic.plant.control import run_closed_loop
+    from civic.plant.model import Overflow
+    from civic.plant.simulate import Recording
+
+    plant = sweep_draw((1.0234, 0.9986, 1.0129, 1.0123))
+    plant.tank("T1").overflow = Overflow(to="T4", volume=9.0, fraction=0.2, rest="outside")
+    res = run_closed_loop(plant, 600.0, controller="pi", seed=153, noise=True, controller_model=nominal)
+    t1, t4 = nominal.tank_names.index("T1"), nominal.tank_names.index("T4")
+    starved = res.volumes[:, t4] < nominal.find("pump", "P1").min_source_volume + 0.01
+    assert starved.sum() >= 150 and (res.volumes[starved, t1] > 8.98).sum() >= 100   # spilling while starved
+    d = diagnose(nominal, Recording(res.t, res.signals, res.fields, "T1 split, reservoir drained"))
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("overflow", "T1")]
+    assert abs(d.final_all.mechanisms[0].values()["fraction"] - 0.2) < 0.02
+
+
 def test_clean_plant_no_alarm(closed_loop_case, nominal):
     for seed in (11, 12):
         d = diagnose(nominal, closed_loop_case("clean", seed))

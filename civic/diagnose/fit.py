@@ -45,6 +45,9 @@ from .replay import replay_select
 # jointly with the candidates (no datasheet spread to hold them), more findings may join, the
 # final joint refit is multi-start and every kept finding must survive its ablation
 FREE_RUN_CAL = (0.1, 5.0)
+# a finding whose removal from the final fit raises the weighted SSE of all rows by less than
+# this (one noise unit, summed) acts nowhere: dropped like a negligible one
+INERT_SSE = 1.0
 
 
 def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float = 5.0,
@@ -135,7 +138,7 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         # a V1 closure for 75 s (0.39 where the blocks it was judged on saw it) took the local
         # trace of an L1 offset and fell to 0.016 once the offset joined
         kept = [] if free else [i for i, m in enumerate(final_all.mechanisms)
-                                if not m.negligible(m.values(), model)]
+                                if not m.negligible(m.values(), model) and not _inert(prob, final_all, i)]
         if kept and len(kept) < len(mechs):
             mechs, diag.findings = [mechs[i] for i in kept], [diag.findings[i] for i in kept]
             final_all = _refit_all(prob, mechs, start)
@@ -201,6 +204,16 @@ def _all_rows_sse(prob: Problem, mechs: list[Mechanism], start: FitResult) -> fl
     and unmeasured initial volumes (no fit)."""
     model = prob.build(mechs, [m.x0 for m in mechs], start.cal)
     return float(np.sum(prob.residuals(model, start.x0_extra) ** 2))
+
+
+def _inert(prob: Problem, res: FitResult, i: int) -> bool:
+    """Whether finding `i` of `res` (fitted on all rows) changes the residuals by less than one
+    noise unit, summed over every row, when taken out with the others' values kept: it acts
+    nowhere there. A T2 rim chosen beside a sensor map (held-out BIC -211) sat above every
+    volume the map's refit on all rows reads, its split fraction still at its start."""
+    others = [m for j, m in enumerate(res.mechanisms) if j != i]
+    without = prob.residuals(prob.build(others, [None] * len(others), res.cal), res.x0_extra)
+    return float(np.sum(without ** 2) - np.sum(prob.residuals(res.model, res.x0_extra) ** 2)) < INERT_SSE
 
 
 def _refit_all(prob: Problem, mechs: list[Mechanism], start: FitResult) -> FitResult:

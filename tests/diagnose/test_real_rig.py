@@ -302,7 +302,7 @@ def test_contenders_one_order_does_not_separate_are_decided_on_both(nominal):
     from civic.diagnose.forward import ALT_DBIC
     from civic.diagnose.report import build_report
 
-    plant = _bench_draw(nominal, 0.31060626, 0.25069528, 0.12302626, 0.29889611)
+    plant = _bench_draw(nominal, 0.3106062550754868, 0.25069528226314586, 0.12302625649578174, 0.2988961057039464)
     plant.find("link", "V2").exponent = 0.7
     rec = _closed_loop(nominal, plant, 300.0, "mpc", 2)
     d = diagnose(nominal, rec)
@@ -408,3 +408,26 @@ def test_a_sensor_bent_both_ways_from_its_calibration_point_is_named_by_its_quad
     d = diagnose(nominal, _closed_loop(nominal, plant, 600.0, "mpc", 162))
     assert [f["mechanism"].label for f in d.findings] == ["sensor_characteristic(L2, quadratic)"]
     assert d.final_all.mechanisms[0].values()["curvature"] == pytest.approx(0.02, abs=0.008)
+
+
+def test_a_finding_the_final_fit_leaves_acting_nowhere_is_dropped(nominal, tmp_path):
+    """The same bent L2 on the bench's seed-2 draw, recorded to a pcap and loaded as `civic
+    diagnose` loads it: forward selection added a T2 split beside the quadratic map (held-out BIC
+    -211), but refitted on all rows the map reads T2 no higher than 8.16 L and the split's rim sat
+    at 8.34 L, its fraction still at its start: a finding that acts on no row. The map alone is
+    reported. (The draw to the last digit: the loop's path, and this selection, hang on it.)"""
+    from civic.diagnose import data
+    from civic.plant.control import run_closed_loop
+    from civic.plant.simulate import to_wire
+    from civic.wire import build_frames, write_pcap
+
+    plant = _bench_draw(nominal, 0.3106062550754868, 0.25069528226314586, 0.12302625649578174, 0.2988961057039464)
+    s = plant.find("sensor", "L2")
+    s.curvature, s.pivot = 0.02, 5.0
+    res = run_closed_loop(plant, 600.0, controller="mpc", seed=2, noise=True, controller_model=nominal)
+    fields = to_wire(nominal, res.signals)
+    write_pcap(tmp_path / "case.pcap", 1767225600.0 + res.t,
+               build_frames({c: fields[c] for c in ("l1", "l2", "l3", "l4", "p1", "v1", "v2")}))
+    d = diagnose(nominal, data.load(tmp_path / "case.pcap", nominal))
+    assert [f["mechanism"].label for f in d.findings] == ["sensor_characteristic(L2, quadratic)"]
+    assert d.final_all.mechanisms[0].values()["curvature"] == pytest.approx(0.02, abs=0.004)

@@ -301,8 +301,8 @@ class EquationError:
                 step = g[i] - q[i]
                 if prev is not None:
                     dq = q[i] - prev[0][i]
-                    moved = np.abs(dq) > 1e-15
-                    slope = np.where(moved, (g[i] - prev[1][i]) / np.where(moved, dq, 1.0), 0.0)
+                    changed = np.abs(dq) > 1e-15
+                    slope = np.where(changed, (g[i] - prev[1][i]) / np.where(changed, dq, 1.0), 0.0)
                     step = step / (1.0 - np.clip(slope, 0.0, 1.0 - 1e-6))
                 nxt[i] = np.clip(q[i] + step, 0.0, full)
             prev, q = (q, g), nxt
@@ -342,19 +342,21 @@ class EquationError:
         it sucks air in bursts and passes, on average, what flows into its source; the measured
         volume cannot say which burst a sample saw (a spill to outside fed by such a pump was
         counted at the pump's full flow: the inventory took the difference for an L4 offset)."""
-        tidx = {t.name: i for i, t in enumerate(model.tanks)}
         out = []
-        for i, p in enumerate(model.pumps):
-            if p.from_ not in tidx or p.min_source_volume <= 0:
-                continue
-            src = tidx[p.from_]
-            low = V[:, src] <= p.min_source_volume + self.rim_tol[p.from_]
+        for i, src, low in self._dry_sources(model, V):
             rows = np.flatnonzero(low[:-1] & low[1:])
             if rows.size:
                 lifted = VV.copy()
-                lifted[:, src] = np.maximum(lifted[:, src], p.min_source_volume)
+                lifted[:, src] = np.maximum(lifted[:, src], model.pumps[i].min_source_volume)
                 out.append((i, rows, self._interval_flows(model, lifted, AA, CC, rows)[2][:, i]))
         return out
+
+    def _dry_sources(self, model: PlantModel, V: np.ndarray) -> list:
+        """Per pump with a dry-run protection whose source tank is measured: (pump index, source
+        column, the samples where the source reads its minimum volume within the noise band)."""
+        tidx = {t.name: i for i, t in enumerate(model.tanks)}
+        return [(i, tidx[p.from_], V[:, tidx[p.from_]] <= p.min_source_volume + self.rim_tol[p.from_])
+                for i, p in enumerate(model.pumps) if p.from_ in tidx and p.min_source_volume > 0]
 
     def _at_rim(self, model: PlantModel, V: np.ndarray) -> dict:
         """Per overflowing tank: the intervals that end with it at its rim (within the reading's
@@ -439,14 +441,10 @@ class EquationError:
         the pump's two tanks (a large leak out of the circuit drained T4 to it in 8 min, and the
         starving pump was named a closure)."""
         tidx = {t.name: i for i, t in enumerate(model.tanks)}
-        for p in model.pumps:
-            if p.from_ not in tidx or p.min_source_volume <= 0:
-                continue
-            low = V[:, tidx[p.from_]] <= p.min_source_volume + self.rim_tol[p.from_]
+        for i, src, low in self._dry_sources(model, V):
             if low.any():
-                w = self.touched(low)
-                cols = [tidx[p.from_]] + ([tidx[p.to]] if p.to in tidx else [])
-                R[np.ix_(w, cols)] = 0.0
+                to = model.pumps[i].to
+                R[np.ix_(self.touched(low), [src] + ([tidx[to]] if to in tidx else []))] = 0.0
 
     def _inventory(self, model: PlantModel, V: np.ndarray, out: np.ndarray, blind: np.ndarray) -> np.ndarray:
         """Per window: mean measured total volume minus (stated total - water the model let out).

@@ -137,8 +137,11 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         # a finding the fit on all rows makes negligible beside the others was a patch for them:
         # a V1 closure for 75 s (0.39 where the blocks it was judged on saw it) took the local
         # trace of an L1 offset and fell to 0.016 once the offset joined
-        kept = [] if free else [i for i, m in enumerate(final_all.mechanisms)
-                                if not m.negligible(m.values(), model) and not _inert(prob, final_all, i)]
+        kept = []
+        if not free:
+            inert = _inert(prob, final_all)
+            kept = [i for i, m in enumerate(final_all.mechanisms)
+                    if not m.negligible(m.values(), model) and i not in inert]
         if kept and len(kept) < len(mechs):
             mechs, diag.findings = [mechs[i] for i in kept], [diag.findings[i] for i in kept]
             final_all = _refit_all(prob, mechs, start)
@@ -206,14 +209,14 @@ def _all_rows_sse(prob: Problem, mechs: list[Mechanism], start: FitResult) -> fl
     return float(np.sum(prob.residuals(model, start.x0_extra) ** 2))
 
 
-def _inert(prob: Problem, res: FitResult, i: int) -> bool:
-    """Whether finding `i` of `res` (fitted on all rows) changes the residuals by less than one
-    noise unit, summed over every row, when taken out with the others' values kept: it acts
-    nowhere there. A T2 rim chosen beside a sensor map (held-out BIC -211) sat above every
-    volume the map's refit on all rows reads, its split fraction still at its start."""
-    others = [m for j, m in enumerate(res.mechanisms) if j != i]
-    without = prob.residuals(prob.build(others, [None] * len(others), res.cal), res.x0_extra)
-    return float(np.sum(without ** 2) - np.sum(prob.residuals(res.model, res.x0_extra) ** 2)) < INERT_SSE
+def _inert(prob: Problem, res: FitResult) -> set[int]:
+    """The findings of `res` (fitted on all rows) that change the weighted SSE of all rows by less
+    than INERT_SSE when taken out with the others' values kept: they act nowhere there. A T2 rim
+    chosen beside a sensor map (held-out BIC -211) sat above every volume the map's refit on all
+    rows reads, its split fraction still at its start."""
+    mechs = res.mechanisms
+    full = _all_rows_sse(prob, mechs, res)
+    return {i for i in range(len(mechs)) if _all_rows_sse(prob, mechs[:i] + mechs[i + 1:], res) - full < INERT_SSE}
 
 
 def _refit_all(prob: Problem, mechs: list[Mechanism], start: FitResult) -> FitResult:

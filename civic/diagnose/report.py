@@ -21,6 +21,7 @@ from civic.plant.model import PlantModel
 from civic.plant.simulate import Recording, initial_state, simulate
 
 from .compare import INVENTORY, EquationError, SimulationError, rmse
+from .forward import BOTH_ORDERS
 from .problem import Diagnosis
 from .locate import mask_intervals, median_nonzero, merge
 from .mechanisms.base import Mechanism
@@ -118,12 +119,16 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         intervals = _finding_intervals(diag, f["prev"], f["fit"], mech)
         ev = [f"held-out {eng.kind} error: BIC {f['dbic']:+.1f}, weighted SSE {-100 * f['gain']:+.0f} % "
               f"vs the calibrated model without it"]
-        if f.get("held_out"):
+        if f.get("held_out") == BOTH_ORDERS:
+            ev[0] += (f" ({f['held_out']}: the held-out blocks hold little of the mismatch, so the model with "
+                      "and without it were fitted on each order's training blocks and judged on the other's, pooled)")
+        elif f.get("held_out"):
             ev[0] += (f" ({f['held_out']}: it acts in the training blocks only, so the model with and "
                       "without it were refitted on the held-out blocks and judged on the training ones)")
         if f.get("both_orders"):
-            ev.append("chosen on both block orders among its variants and the candidates one order did not "
-                      "separate (pooled held-out BIC vs the model without: "
+            ev.append("chosen on both block orders among its variants, the candidates one order did not "
+                      "separate and, where the held-out blocks hold little of the mismatch, those that fit the "
+                      "training blocks best (pooled held-out BIC vs the model without: "
                       + ", ".join(f"{v['candidate']} {v['dbic']:+.1f}" for v in f["both_orders"]) + ")")
         if isinstance(eng, EquationError):
             Rp = _resid(diag, f["prev"])            # the model without this finding
@@ -174,7 +179,7 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
             "heldout_sse_reduction": round(f["gain"], 4),
         })
         if f.get("held_out"):
-            findings[-1]["heldout_split"] = "swapped"
+            findings[-1]["heldout_split"] = "both" if f["held_out"] == BOTH_ORDERS else "swapped"
         if f.get("both_orders"):
             # the pooled evidence the choice was made on, next to the single order's
             findings[-1]["heldout_dbic_both_orders"] = round(f["dbic_both_orders"], 2)

@@ -208,7 +208,7 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
     # the pool was significant on one order already: it needs only to gain pooled; a contender
     # must be significant on the pooled evidence, which is then its whole evidence (one order's
     # held-out blocks may hold the levels its training blocks never visit: a bent L2 fitted where
-    # V1's head stays above 0.2 L lost 261 there and gained 699 the other way)
+    # V1's head stays above 0.2 L lost 261 there and gained about 700 the other way)
     eligible = [(fits[x[0].label].val_bic - ref.val_bic, x) for x in pool if fits[x[0].label].val_bic < ref.val_bic]
     eligible += [(fits[x[0].label].val_bic - ref.val_bic, (x[0], x[1], (fits[x[0].label], ref, BOTH_ORDERS)))
                  for x in contenders if _pooled_significant(fits[x[0].label], ref, min_gain)[0]]

@@ -446,6 +446,25 @@ class EquationError:
                 to = model.pumps[i].to
                 R[np.ix_(self.touched(low), [src] + ([tidx[to]] if to in tidx else []))] = 0.0
 
+    def level_error_spread(self, model: PlantModel, shift_sigmas: float = 1.0) -> np.ndarray:
+        """(windows, columns): how far each window's balance moves when each tank's reading is
+        shifted by `shift_sigmas` of its noise (in quadrature over the sensors; the inventory's
+        own spread is how well the fill is known, so 0 there). A window where a link's head is
+        near zero moves far (Torricelli's flow has an infinite slope there), one where the
+        levels stand apart hardly at all."""
+        R0 = self.residuals(model)
+        spread = np.zeros_like(R0)
+        for s in self.sensor_of.values():
+            kept = self.ys[s]
+            try:
+                self.ys[s] = kept + shift_sigmas * noise_sigma(self.raw[s])
+                spread += (self.residuals(model) - R0) ** 2
+            finally:
+                self.ys[s] = kept
+        if INVENTORY in self.columns:
+            spread[:, self.columns.index(INVENTORY)] = 0.0
+        return np.sqrt(spread)
+
     def _inventory(self, model: PlantModel, V: np.ndarray, out: np.ndarray, blind: np.ndarray) -> np.ndarray:
         """Per window: mean measured total volume minus (stated total - water the model let out).
         The `blind` windows (a censored sensor or a lost message) carry no information (0)."""

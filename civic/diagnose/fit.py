@@ -48,6 +48,9 @@ FREE_RUN_CAL = (0.1, 5.0)
 # a finding whose removal from the final fit raises the weighted SSE of all rows by less than
 # this (one noise unit, summed) acts nowhere: dropped like a negligible one
 INERT_SSE = 1.0
+# equation error: the systematic level error (in noise sigmas of each reading) a window's weight
+# allows for (`EquationError.level_error_spread`)
+LEVEL_ERROR = 1.0
 
 
 def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float = 5.0,
@@ -72,8 +75,17 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         sigma = np.array([max(noise_sigma(engine.Y[:, j]), 1e-3 * (np.ptp(engine.Y[:, j]) or 1.0))
                           for j in range(engine.Y.shape[1])])
     prob.sigma = sigma
+    if isinstance(engine, EquationError):
+        # errors in the variables: a window is weighted by what it can tell whatever the levels'
+        # calibration, its sigma widened by how far a one-noise shift of the readings moves it.
+        # Within a 5 s window the noise itself averages out (30 draws spread the windows by 1.0-1.3x
+        # the median), but a shift does not: 0.02 L on L2 moved the T1 and T2 balances by 0.03 L
+        # where V1's head stood under 0.2 L, 5x elsewhere, and a V1 flow law that flattens the
+        # flow there was named instead of the bent L2 reading
+        prob.sigma = sigma * np.sqrt(1.0 + (engine.level_error_spread(first.model, LEVEL_ERROR) / sigma) ** 2)
     base = prob.evaluate([])
     Rb = prob.residuals(base.model, base.x0_extra)
+    # localised on the weighted balances (in the columns' units)
     loc = localise(model, rec, engine, Rb * sigma, sigma, pinned=cal.pinned(base.cal))
     if isinstance(engine, EquationError) and not engine.short and not loc.flagged:
         # not on a short test run: its few held-out windows gave false findings before

@@ -26,11 +26,10 @@ ORDER_AGREEMENT = 0.25  # a later finding: each block order's held-out gain at l
 # is an indistinguishable alternative: reported next to the finding, never a finding itself
 ALT_DBIC = 10.0
 MAX_ALTERNATIVES = 3
-# a round whose reference leaves less than this share of its training misfit on the held-out
-# blocks has little held-out evidence for anyone: the IMBALANCED_CONTENDERS candidates that fit
-# the training blocks best are decided on both block orders too, significant on one or not
-IMBALANCE = 0.5
-IMBALANCED_CONTENDERS = 3
+# the candidates that fit the training blocks best (this many) are decided on both block orders
+# too, significant on one order or not: one order's held-out blocks may hold levels its training
+# blocks never visit, or little of the mismatch
+CONTENDERS = 3
 # a finding's `held_out`: judged with the blocks swapped, or adopted on both orders' pooled evidence only
 SWAPPED, BOTH_ORDERS = "blocks swapped", "both block orders"
 
@@ -97,7 +96,7 @@ def forward_select(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], 
             break
         pooled = {v["candidate"]: v["dbic"] for v in both}
         if how == BOTH_ORDERS:
-            # a contender of an imbalanced round: its evidence and its alternatives are the pooled ones
+            # a contender one order did not find significant: its evidence and alternatives are the pooled ones
             _, dbic, gain = _pooled_significant(both_fits[cand.label], both_fits["reference"], min_gain)
             alternatives = _pooled_alternatives(results, cand, both_fits, pooled, min_gain)
         else:
@@ -185,18 +184,16 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
     other's judged; pooled held-out BIC): twice the held-out evidence. On PI seed 43 the tied L1 map won
     on one order (n = 1.15, an offset) and missed the other by 9x; the map through the rim holds on
     both. On 5 min records a V2 valve characteristic led a V2 flow exponent of 0.7 by 1.9 on one order
-    and lost by 283 on both. In an imbalanced round (`IMBALANCE`) the candidates that fit the training
-    blocks best join them, judged on the pooled evidence alone (their `how`: BOTH_ORDERS). Also returns,
+    and lost by 283 on both. The candidates that fit the training blocks best (`CONTENDERS`) join
+    them, judged on the pooled evidence alone (their `how`: BOTH_ORDERS). Also returns,
     when that decision was taken, each one's pooled held-out BIC change against the model without it
     (best first), and the both-order fits ("reference" and candidate labels)."""
     cand, how = best[0], best[2][2]
     top = _heldout_dbic(best)
     pool = [x for x in results if not x[2][2] and significant(x[2][0], x[2][1], min_gain)[0]
             and ((x[0].name, x[0].component) == (cand.name, cand.component) or _heldout_dbic(x) - top < ALT_DBIC)]
-    contenders = []
-    if current.val_sse < IMBALANCE * current.train_sse:
-        rest = [x for x in results if not x[2][2] and all(x is not y for y in pool)]
-        contenders = sorted(rest, key=lambda x: x[1].train_sse)[:IMBALANCED_CONTENDERS]
+    rest = [x for x in results if not x[2][2] and all(x is not y for y in pool)]
+    contenders = sorted(rest, key=lambda x: x[1].train_sse)[:CONTENDERS]
     if len(pool) + len(contenders) < 2 or how or prob.engine.short or not isinstance(prob.engine, EquationError):
         return best, [], {}
     both = prob.both_orders()

@@ -141,7 +141,8 @@ def extra_starts(cand: Mechanism) -> list:
 
 
 class Problem:
-    """Objective plumbing: model edits -> weighted residual rows of an engine."""
+    """Objective plumbing: model edits -> weighted residual rows of an engine. `sigma`: the
+    weights, per column or per row and column."""
 
     def __init__(self, model: PlantModel, rec: Recording, engine, cal: Calibration, sigma: np.ndarray):
         self.model = model
@@ -285,11 +286,12 @@ class Problem:
                  budget: int = 40, folds: list | None = None) -> FitResult:
         """Fit on each fold's training rows; held-out SSE/BIC over all folds' held-out rows
         (`folds`: training masks, default `self.folds()`)."""
-        first, held, params = None, [], []
+        first, held, held_sigma, params = None, [], [], []
         for mask in (self.folds() if folds is None else folds):
             res = self.fit(mechs, rows=mask, start_cal=start_cal, start_x0=start_x0, starts=starts, budget=budget)
             R = self.residuals(res.model, res.x0_extra)
             held.append(R[~mask])
+            held_sigma.append(np.broadcast_to(self.sigma, R.shape)[~mask])
             params.append([m.values() for m in res.mechanisms])
             if first is None:
                 first = res
@@ -302,7 +304,7 @@ class Problem:
         if self.unmeasured:
             first.fold_tol = None     # free run: the pooled held-out error decides (one block may hold no event)
         first.val_sse = float(np.sum(Rv ** 2))
-        first.val_rmse = float(np.sqrt(np.mean((Rv * self.sigma) ** 2)))
+        first.val_rmse = float(np.sqrt(np.mean((Rv * np.concatenate(held_sigma)) ** 2)))
         first.val_bic = self.bic(Rv, first.k)
         return first
 

@@ -131,9 +131,10 @@ def make_fault(nominal, name):
         draw_calibration(m, nominal, SWEEP_SEED2)
         m.find("sensor", "L1").offset = 0.1
     elif name == "P1_low_at_edge":
-        # the seed-94 plant with P1's gain 5.3 % below the datasheet: the calibration's -5 % edge
-        # takes all but 0.3 % of it
-        draw_calibration(m, nominal, (0.947, 0.9817, 1.0126, 0.9975))
+        # the seed-94 plant with P1's gain 5.5 % below the datasheet: the calibration's -5 % edge
+        # takes all but 0.5 % of it (at 5.3 % the calibration settled at -4.95 % once the balances
+        # were weighted for errors in the variables)
+        draw_calibration(m, nominal, (0.945, 0.9817, 1.0126, 0.9975))
     elif name == "closure_V2_from300+leak_T1":
         # the sweep's seed-2 plant, VM1 closed 55 % from 300 s and a T1 leak into the reservoir
         draw_calibration(m, nominal, SWEEP_SEED2)

@@ -137,3 +137,28 @@ def test_spill_is_modelled_on_every_noisy_sample_at_the_rim(nominal, n):
     R = EquationError(seen, rec).residuals(seen)[:, :2]
     z = R.mean(axis=0) / (sd / np.sqrt(len(R)))
     assert np.all(np.abs(z) < 5), z
+
+
+def test_level_error_spread_is_large_where_a_links_head_is_near_zero(nominal):
+    """V1 open, T1 and T2 level for the first half of the record and 2 L apart for the second:
+    a one-noise shift of a reading moves V1's Torricelli flow, and T1's balance, many times
+    further where the head is near zero (the flow's slope in the head is infinite there) than
+    where the levels stand apart; T3's balance, whose links see 4 L heads, hardly moves. The
+    noise itself (what the windows' robust spread measures) is the same in both halves."""
+    n = 3000
+    rng = np.random.default_rng(7)
+    t = np.arange(n) * nominal.dt
+    level = {"L1": np.where(t < t[n // 2], 6.0, 8.0), "L2": np.full(n, 6.0), "L3": np.full(n, 2.0),
+             "L4": np.full(n, 20.0)}
+    signals = {k: v + rng.normal(0.0, 0.05 if k == "L4" else 0.02, n) for k, v in level.items()}
+    signals.update(p1=np.full(n, 0.5), v1=np.ones(n), v2=np.full(n, 0.3))
+    ee = EquationError(nominal, Recording(t, signals, {}, "level heads"))
+    spread = ee.level_error_spread(nominal)
+    level_half = ee.row_times[:, 1] <= t[n // 2]
+    t1, t3 = ee.columns.index("T1"), ee.columns.index("T3")
+    near, apart = np.median(spread[level_half, t1]), np.median(spread[~level_half, t1])
+    assert near > 5 * apart, (near, apart)
+    assert np.median(spread[:, t3]) < apart
+    assert np.all(spread[:, ee.columns.index(INVENTORY)] == 0.0)
+    # the readings are left as they were
+    assert np.allclose(ee.ys["L1"], uniform_filter1d(signals["L1"], ee.smooth, mode="nearest"))

@@ -120,15 +120,15 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
         ev = [f"held-out {eng.kind} error: BIC {f['dbic']:+.1f}, weighted SSE {-100 * f['gain']:+.0f} % "
               f"vs the calibrated model without it"]
         if f.get("held_out") == BOTH_ORDERS:
-            ev[0] += (f" ({f['held_out']}: the held-out blocks hold little of the mismatch, so the model with "
-                      "and without it were fitted on each order's training blocks and judged on the other's, pooled)")
+            ev[0] += (f" ({f['held_out']}: one order's held-out blocks did not find it significant, so the model "
+                      "with and without it were fitted on each order's training blocks and judged on the other's, pooled)")
         elif f.get("held_out"):
             ev[0] += (f" ({f['held_out']}: it acts in the training blocks only, so the model with and "
                       "without it were refitted on the held-out blocks and judged on the training ones)")
         if f.get("both_orders"):
             ev.append("chosen on both block orders among its variants, the candidates one order did not "
-                      "separate and, where the held-out blocks hold little of the mismatch, those that fit the "
-                      "training blocks best (pooled held-out BIC vs the model without: "
+                      "separate and those that fit the training blocks best (pooled held-out BIC vs the model "
+                      "without: "
                       + ", ".join(f"{v['candidate']} {v['dbic']:+.1f}" for v in f["both_orders"]) + ")")
         if isinstance(eng, EquationError):
             Rp = _resid(diag, f["prev"])            # the model without this finding

@@ -410,25 +410,34 @@ def test_a_sensor_bent_both_ways_from_its_calibration_point_is_named_by_its_quad
     assert d.final_all.mechanisms[0].values()["curvature"] == pytest.approx(0.02, abs=0.008)
 
 
-def test_a_finding_the_final_fit_leaves_acting_nowhere_is_dropped(nominal, tmp_path):
-    """The same bent L2 on the bench's seed-2 draw, recorded to a pcap and loaded as `civic
-    diagnose` loads it: forward selection added a T2 split beside the quadratic map (held-out BIC
-    -211), but refitted on all rows the map reads T2 no higher than 8.16 L and the split's rim sat
-    at 8.34 L, its fraction still at its start: a finding that acts on no row. The map alone is
-    reported. (The draw to the last digit: the loop's path, and this selection, hang on it.)"""
+def _bent_l2_through_pcap(nominal, draw, controller, seed, tmp_path):
+    """A 10 min closed-loop run of the bench's `draw` with L2 reading V + 0.02 (V - 5)^2, recorded
+    to a pcap and loaded as `civic diagnose` loads it (the draw to the last digit: the loop's path,
+    and the selection, hang on it)."""
     from civic.diagnose import data
     from civic.plant.control import run_closed_loop
     from civic.plant.simulate import to_wire
     from civic.wire import build_frames, write_pcap
 
-    plant = _bench_draw(nominal, 0.3106062550754868, 0.25069528226314586, 0.12302625649578174, 0.2988961057039464)
+    plant = _bench_draw(nominal, *draw)
     s = plant.find("sensor", "L2")
     s.curvature, s.pivot = 0.02, 5.0
-    res = run_closed_loop(plant, 600.0, controller="mpc", seed=2, noise=True, controller_model=nominal)
+    res = run_closed_loop(plant, 600.0, controller=controller, seed=seed, noise=True, controller_model=nominal)
     fields = to_wire(nominal, res.signals)
     write_pcap(tmp_path / "case.pcap", 1767225600.0 + res.t,
                build_frames({c: fields[c] for c in ("l1", "l2", "l3", "l4", "p1", "v1", "v2")}))
-    d = diagnose(nominal, data.load(tmp_path / "case.pcap", nominal))
+    return data.load(tmp_path / "case.pcap", nominal)
+
+
+def test_a_finding_the_final_fit_leaves_acting_nowhere_is_dropped(nominal, tmp_path):
+    """The same bent L2 on the bench's seed-2 draw, recorded to a pcap and loaded as `civic
+    diagnose` loads it: forward selection added a T2 split beside the quadratic map (held-out BIC
+    -211), but refitted on all rows the map reads T2 no higher than 8.16 L and the split's rim sat
+    at 8.34 L, its fraction still at its start: a finding that acts on no row. The map alone is
+    reported."""
+    draw = (0.3106062550754868, 0.25069528226314586, 0.12302625649578174, 0.2988961057039464)
+    rec = _bent_l2_through_pcap(nominal, draw, "mpc", 2, tmp_path)
+    d = diagnose(nominal, rec)
     assert [f["mechanism"].label for f in d.findings] == ["sensor_characteristic(L2, quadratic)"]
     assert d.final_all.mechanisms[0].values()["curvature"] == pytest.approx(0.02, abs=0.004)
 
@@ -440,23 +449,12 @@ def test_a_best_fitting_candidate_one_block_order_rejects_is_decided_on_both(nom
     held-out BIC -19, where a pipe23 flow law scored -125 and was named; a V2 flow law before the
     balances were weighted for errors in the variables). The candidates that fit the training
     blocks best are decided on both block orders too: the map wins pooled, and its report says
-    so (its evidence is the pooled one). Through a pcap, as `civic diagnose` loads it, with the
-    draw to the last digit: the loop's path hangs on it."""
-    from civic.diagnose import data
+    so (its evidence is the pooled one)."""
     from civic.diagnose.forward import BOTH_ORDERS
     from civic.diagnose.report import build_report
-    from civic.plant.control import run_closed_loop
-    from civic.plant.simulate import to_wire
-    from civic.wire import build_frames, write_pcap
 
-    plant = _bench_draw(nominal, 0.3092192451685583, 0.254689625102006, 0.12268036889963577, 0.2932233502210702)
-    s = plant.find("sensor", "L2")
-    s.curvature, s.pivot = 0.02, 5.0
-    res = run_closed_loop(plant, 600.0, controller="pi", seed=6, noise=True, controller_model=nominal)
-    fields = to_wire(nominal, res.signals)
-    write_pcap(tmp_path / "case.pcap", 1767225600.0 + res.t,
-               build_frames({c: fields[c] for c in ("l1", "l2", "l3", "l4", "p1", "v1", "v2")}))
-    rec = data.load(tmp_path / "case.pcap", nominal)
+    draw = (0.3092192451685583, 0.254689625102006, 0.12268036889963577, 0.2932233502210702)
+    rec = _bent_l2_through_pcap(nominal, draw, "pi", 6, tmp_path)
     d = diagnose(nominal, rec)
     assert [f["mechanism"].label for f in d.findings] == ["sensor_characteristic(L2, quadratic)"]
     assert d.final_all.mechanisms[0].values()["curvature"] == pytest.approx(0.02, abs=0.004)
@@ -471,20 +469,9 @@ def test_balances_near_a_zero_head_are_weighted_for_errors_in_the_variables(nomi
     for most of block 3, where a 0.02 L error in a reading moves V1's computed flow by 0.03 L a
     window, 5x elsewhere. Weighted alike, those windows made a V1 flow law (which flattens the
     flow near zero head) and a T3 spill the findings; weighted by what a one-noise shift of the
-    readings does to them, the quadratic L2 map is named alone. Through a pcap, the draw to the
-    last digit."""
-    from civic.diagnose import data
-    from civic.plant.control import run_closed_loop
-    from civic.plant.simulate import to_wire
-    from civic.wire import build_frames, write_pcap
-
-    plant = _bench_draw(nominal, 0.3100404421034466, 0.2564266374726763, 0.12453676216394018, 0.30239092158572045)
-    s = plant.find("sensor", "L2")
-    s.curvature, s.pivot = 0.02, 5.0
-    res = run_closed_loop(plant, 600.0, controller="mpc", seed=1, noise=True, controller_model=nominal)
-    fields = to_wire(nominal, res.signals)
-    write_pcap(tmp_path / "case.pcap", 1767225600.0 + res.t,
-               build_frames({c: fields[c] for c in ("l1", "l2", "l3", "l4", "p1", "v1", "v2")}))
-    d = diagnose(nominal, data.load(tmp_path / "case.pcap", nominal))
+    readings does to them, the quadratic L2 map is named alone."""
+    draw = (0.3100404421034466, 0.2564266374726763, 0.12453676216394018, 0.30239092158572045)
+    rec = _bent_l2_through_pcap(nominal, draw, "mpc", 1, tmp_path)
+    d = diagnose(nominal, rec)
     assert [f["mechanism"].label for f in d.findings] == ["sensor_characteristic(L2, quadratic)"]
     assert d.final_all.mechanisms[0].values()["curvature"] == pytest.approx(0.02, abs=0.004)

@@ -98,7 +98,9 @@ def forward_select(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], 
         if how == BOTH_ORDERS:
             # a contender one order did not find significant: its evidence and alternatives are the pooled ones
             _, dbic, gain = _pooled_significant(both_fits[cand.label], both_fits["reference"], min_gain)
-            alternatives = _pooled_alternatives(results, cand, both_fits, pooled, min_gain)
+            judged_pooled = [(c, fit, (replace(both_fits[c.label], fold_tol=None), both_fits["reference"], BOTH_ORDERS))
+                             for c, fit, _ in results if c.label in both_fits]
+            alternatives = indistinguishable(judged_pooled, cand, dbic, min_gain, pooled)
         else:
             _, dbic, gain = significant(r, ref, min_gain)      # a candidate returned is significant too
             # what both orders separated from the chosen one is no longer indistinguishable from it
@@ -200,14 +202,14 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
     ref = prob.evaluate(chosen, start_cal=current.cal, folds=both)
     fits = {x[0].label: prob.evaluate(chosen + [x[0]], start_cal=current.cal, starts=extra_starts(x[0]), folds=both)
             for x in pool + contenders}
-    decided = sorted(({"candidate": label, "dbic": f.val_bic - ref.val_bic} for label, f in fits.items()),
-                     key=lambda v: v["dbic"])
+    dbic = {label: f.val_bic - ref.val_bic for label, f in fits.items()}
+    decided = sorted(({"candidate": label, "dbic": d} for label, d in dbic.items()), key=lambda v: v["dbic"])
     # the pool was significant on one order already: it needs only to gain pooled; a contender
     # must be significant on the pooled evidence, which is then its whole evidence (one order's
     # held-out blocks may hold the levels its training blocks never visit: a bent L2 fitted where
     # V1's head stays above 0.2 L lost 261 there and gained about 700 the other way)
-    eligible = [(fits[x[0].label].val_bic - ref.val_bic, x) for x in pool if fits[x[0].label].val_bic < ref.val_bic]
-    eligible += [(fits[x[0].label].val_bic - ref.val_bic, (x[0], x[1], (fits[x[0].label], ref, BOTH_ORDERS)))
+    eligible = [(dbic[x[0].label], x) for x in pool if dbic[x[0].label] < 0]
+    eligible += [(dbic[x[0].label], (x[0], x[1], (fits[x[0].label], ref, BOTH_ORDERS)))
                  for x in contenders if _pooled_significant(fits[x[0].label], ref, min_gain)[0]]
     chosen_one = min(eligible, key=lambda e: e[0])[1] if eligible else best
     return chosen_one, decided, {"reference": ref, **fits}
@@ -216,20 +218,6 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
 def _pooled_significant(res: FitResult, ref: FitResult, min_gain: float) -> tuple[bool, float, float]:
     """`significant` on both block orders' pooled held-out evidence, whatever each order's own."""
     return significant(replace(res, fold_tol=None), ref, min_gain)
-
-
-def _pooled_alternatives(results, cand: Mechanism, fits: dict, pooled: dict, min_gain: float) -> list[dict]:
-    """`indistinguishable` for a finding adopted on both block orders' pooled evidence: the
-    candidates decided with it that are significant pooled and within ALT_DBIC of it there."""
-    out = []
-    for c, res, _ in results:
-        if c.label not in fits or c.label == cand.label or (c.name, c.component) == (cand.name, cand.component):
-            continue
-        ok, d, gain = _pooled_significant(fits[c.label], fits["reference"], min_gain)
-        if ok and d - pooled[cand.label] < ALT_DBIC:
-            out.append({"mechanism": c, "fit": res, "dbic": d, "gain": gain, "dbic_both_orders": d,
-                        "dbic_vs_chosen": d - pooled[cand.label]})
-    return sorted(out, key=lambda a: a["dbic_vs_chosen"])[:MAX_ALTERNATIVES]
 
 
 def _holds_on_both_orders(prob: Problem, chosen: list, current: FitResult, cand: Mechanism,

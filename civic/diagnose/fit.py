@@ -161,7 +161,8 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
         diag.final_all = final_all
         if free:
             diag.integrator = check_integrator(diag.model_improved, prob, final_all)
-        diag.uncertainty = uncertainty(prob, final_all, current.fold_params if free else None)
+        diag.uncertainty = uncertainty(prob, final_all, current.fold_params if free else None,
+                                       unit_free=free and volume_unit_free(model, rec))
         diag.verdict = f"{len(mechs)} finding(s) significant on held-out data"
     else:
         diag.model_improved = _refit_all(prob, [], base).model
@@ -171,11 +172,28 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
     return diag
 
 
-def uncertainty(prob: Problem, res: FitResult, fold_params: list | None = None) -> list[dict]:
+def volume_unit_free(model: PlantModel, rec: Recording) -> bool:
+    """Free run: whether nothing but the one recorded sensor's gain fixes the unit of volume. With
+    every coefficient refitted (`FREE_RUN_CAL`), every volume scaled by s, the flows by s (a link's
+    coefficient by s**(1 - exponent)) and the sensor's gain by s**-exponent give the same readings,
+    unless something holds a volume: a second sensor, the stated total water, a fixed rim or
+    capacity, a fixed outlet height, a pump's dry-run level or head. On Cascaded Tanks (T2's level
+    in volts) a fitted map's gain drifts along that family to its bound with the coefficients."""
+    sensed = [s for s in model.sensors if s.name in rec.signals]
+    return (len(sensed) == 1 and model.total_volume is None
+            and all(t.overflow is None and not np.isfinite(t.capacity) for t in model.tanks)
+            and all(link.min_level == 0.0 for link in model.links)
+            and all(p.min_source_volume == 0.0 and p.head_coeff == 0.0 for p in model.pumps))
+
+
+def uncertainty(prob: Problem, res: FitResult, fold_params: list | None = None,
+                unit_free: bool = False) -> list[dict]:
     """Per finding of `res` (fitted on all rows): the standard error of each free parameter from a
     delete-one-block jackknife. Equation error: N_BLOCKS contiguous blocks, each left out once, the
     model refitted from `res` (cheap: vectorised residuals). Free run: the per-fold fits of the
-    blocked cross-validation (`fold_params`, each fold leaves one block out), no extra fits."""
+    blocked cross-validation (`fold_params`, each fold leaves one block out), no extra fits.
+    `unit_free` (`volume_unit_free`): a sensor map's gain is the unit of volume, set by the
+    fit's path and bounds, not by the data: it gets no standard error and is listed as such."""
     from .compare import N_BLOCKS
 
     mechs = res.mechanisms
@@ -197,12 +215,16 @@ def uncertainty(prob: Problem, res: FitResult, fold_params: list | None = None) 
     out = []
     for i, m in enumerate(mechs):
         se = {}
+        unit = ["gain"] if unit_free and m.name == "sensor_characteristic" and "gain" in m.names else []
         for name in m.names:
+            if name in unit:
+                continue
             vals = np.array([fp[i][name] for fp in fold_params if i < len(fp) and name in fp[i]], float)
             if len(vals) >= 2:
                 se[name] = float(np.sqrt((len(vals) - 1) / len(vals) * np.sum((vals - vals.mean()) ** 2)))
         out.append({"method": method or f"delete-one-block jackknife ({k} blocks, refitted)", "stderr": se,
-                    "blocks": [{n: fp[i][n] for n in m.names} for fp in fold_params if i < len(fp)]})
+                    "blocks": [{n: fp[i][n] for n in m.names} for fp in fold_params if i < len(fp)],
+                    "unit_of_volume": unit})
     return out
 
 

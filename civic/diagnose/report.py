@@ -195,6 +195,11 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
                 "method": unc["method"],
                 "stderr": {k: round(v, 6) for k, v in unc["stderr"].items()},
                 "blocks": [{k: round(float(v), 6) for k, v in b.items()} for b in unc["blocks"]]}
+            if unc.get("unit_of_volume"):
+                # the data fix every reading, not this parameter: with it the volume unit moves
+                findings[-1]["uncertainty"]["not_identifiable"] = {
+                    k: "sets the rig's unit of volume (the coefficients and volumes scale with it)"
+                    for k in unc["unit_of_volume"]}
     skip_rows = skip
     before, sim_before = simulation_rmse(model, rec, n_init, skip_rows)
     after, sim_after = simulation_rmse(diag.model_improved, rec, n_init, skip_rows)

@@ -60,6 +60,12 @@ def test_cascaded_tanks_round_trip(tmp_path, capsys):
     assert all(w > abl["heldout_rmse"] for w in without) and without == sorted(without, reverse=True)
     assert [r["finding"].split("(")[0] for r in abl["without"]] == [f["mechanism"] for f in rep["findings"]]
     assert rep["fit"]["integrator"]["max_deviation_sigma"] < 1.0
+    # the sensor map's gain is the rig's unit of volume (one sensor, every coefficient free): no
+    # standard error for it, the bend and the offset keep theirs
+    shape = next(f for f in rep["findings"] if f["mechanism"] == "sensor_characteristic")
+    unc = shape["uncertainty"]
+    assert set(unc["not_identifiable"]) == {"gain"} and "gain" not in unc["stderr"]
+    assert {"exponent", "offset"} <= set(unc["stderr"])
     # the lower tank spills where its sensor clips, under the sensor map fitted with it
     from civic.plant.model import PlantModel
     imp = PlantModel.from_toml(improved)
@@ -79,6 +85,39 @@ def test_cascaded_tanks_round_trip(tmp_path, capsys):
     assert rc == 0, out
     line = [ln for ln in out.splitlines() if ln.startswith("y_V")][0]
     assert float(line.split()[1]) < 0.5    # same model that made the data: noise + initial state only
+
+
+def test_the_unit_of_volume_is_free_where_one_sensor_sees_the_rig():
+    """Cascaded Tanks (one sensor, no stated water, no fixed rim): every volume scaled by s, the
+    flows by s and the sensor's gain by s**-exponent replay the same readings, so the map's gain
+    cannot be told from the coefficients. The four-tank plant (four sensors, a stated fill)
+    holds its unit."""
+    from civic.diagnose import data
+    from civic.diagnose.fit import volume_unit_free
+    from civic.plant.model import Overflow, PlantModel
+    from civic.plant.simulate import simulate
+
+    nominal = PlantModel.from_toml(MODEL)
+    rec = data.load(DATA, nominal)
+    assert volume_unit_free(nominal, rec)
+    plant = PlantModel.from_toml(ROOT / "configs" / "plant.toml")
+    assert not volume_unit_free(plant, data.load(ROOT / "traces" / "diagnose" / "example_none" / "case.pcap", plant))
+
+    def rig(s):
+        m = nominal.copy()
+        sensor = m.find("sensor", "y_V")
+        sensor.exponent, sensor.offset, sensor.gain = 1.8, 1.7, 0.25 * s ** -1.8
+        m.tank("T1").overflow = Overflow(to="T2", volume=9.0 * s, fraction=0.7, rest="outside")
+        m.set("pump.P1.gain", float(nominal.get("pump.P1.gain")) * s)
+        m.set("link.out1.coeff", float(nominal.get("link.out1.coeff")) * s ** 0.5)
+        out2 = m.find("link", "out2")
+        out2.exponent, out2.coeff = 0.4, out2.coeff * s ** 0.6
+        return m
+
+    u = np.asarray(rec.signals["u_V"])
+    t = np.arange(len(u)) * nominal.dt
+    y = [simulate(rig(s), t, {"u_V": u}, {"T1": 6.0 * s, "T2": 4.3 * s})["y_V"] for s in (1.0, 0.5, 2.0)]
+    assert np.ptp(y[0]) > 3.0 and max(np.max(np.abs(y[0] - other)) for other in y[1:]) < 1e-6
 
 
 def test_split_overflow_fraction_is_fitted():

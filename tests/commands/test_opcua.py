@@ -9,6 +9,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -60,6 +61,15 @@ def result_line(out: str) -> str:
     return lines[-1]
 
 
+def wait_lines(path: Path, n: int, timeout: float = 60.0) -> None:
+    """Until the monitor has written n event lines: its tags then hold the first pass's values (it
+    writes each line before it hands the change to the OPC UA server), however slow this machine."""
+    deadline = time.monotonic() + timeout
+    while not (path.exists() and len(path.read_text().splitlines()) >= n):
+        assert time.monotonic() < deadline, f"the monitor wrote fewer than {n} events in {timeout:g} s"
+        time.sleep(0.05)
+
+
 def cell(ev: dict) -> str:
     return f"{ev['plant']}/{ev['monitor']}"
 
@@ -104,6 +114,7 @@ def test_a_subscribed_client_sees_every_change_in_order_and_the_model_counts(sta
             line = monitor.stderr.readline()
             assert line.startswith("monitoring") and f"OPC UA on {ENDPOINT}" in line, line + monitor.stderr.read()
             pair.send(rec, rate=20000)
+            wait_lines(got_events, len(first))         # a client subscribing earlier would see 'none' first
             client = pair.popen(*CLIENTS[stack], ENDPOINT, str(tmp_path / "cells.json"),
                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             lines = iter(client.stdout.readline, "")       # node-opcua may print notices first

@@ -62,8 +62,8 @@ def result_line(out: str) -> str:
 
 
 def wait_lines(path: Path, n: int, timeout: float = 60.0) -> None:
-    """Until the monitor has written n event lines: its tags then hold the first pass's values (it
-    writes each line before it hands the change to the OPC UA server), however slow this machine."""
+    """Until the monitor has written n event lines, however slow this machine: it writes each line
+    before it hands the change to the OPC UA server."""
     deadline = time.monotonic() + timeout
     while not (path.exists() and len(path.read_text().splitlines()) >= n):
         assert time.monotonic() < deadline, f"the monitor wrote fewer than {n} events in {timeout:g} s"
@@ -120,7 +120,8 @@ def test_a_subscribed_client_sees_every_change_in_order_and_the_model_counts(sta
             lines = iter(client.stdout.readline, "")       # node-opcua may print notices first
             assert any(line.strip() == "subscribed" for line in lines), "the client ended before subscribing"
             pair.send(rest, rate=20000)
-            subprocess.run(["sleep", "2.5"])            # counts: every 1 s from the switch, 0.25 s to the tags
+            wait_lines(got_events, len(want))
+            time.sleep(2.5)                            # counts: every 1 s from the switch, 0.25 s to the tags
             out, err = client.communicate("done\n", timeout=60)
             assert client.returncode == 0, err
         finally:

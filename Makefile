@@ -51,7 +51,7 @@ demo: venv
 	else echo "(BMv2 replay skipped: needs simple_switch_grpc and p4c-bm2-ss on PATH, and root)"; fi
 
 test: venv node-client
-	$(BIN)/python -m pytest -q -rs
+	$(BIN)/python -m pytest -q -rs --durations=15
 
 # node-opcua's client (npm registry) for the cross-stack OPC UA test; without npm that test skips
 NODE_CLIENT := tests/opcua_node

@@ -65,6 +65,22 @@ def read_tags(endpoint: str, cells) -> dict:
     return asyncio.run(read())
 
 
+def verdicts_key(cls: str, monitor: str, plant: str) -> tuple:
+    return ("civic_verdicts_total", (("class", cls), ("monitor", monitor), ("plant", plant)))
+
+
+def expected_counts(out: list[bytes], src: np.ndarray, names: list[str]) -> dict:
+    """{civic_verdicts_total key: n}: the verdicts written into the frames that came out of the switch."""
+    verdicts = np.array([int.from_bytes(f[OFF_VERDICT:OFF_VERDICT + 2], "big") for f in out])
+    counted = {}
+    for k, name in enumerate(names):
+        code = monitor_verdict(verdicts, k)
+        for plant in np.unique(src):
+            for cls, c in CLASS_CODES.items():
+                counted[verdicts_key(cls, name, int_to_ip(int(plant)))] = int(np.sum((src == plant) & (code == c)))
+    return counted
+
+
 def without_t(events):
     return [{k: v for k, v in e.items() if k != "t"} for e in events]
 
@@ -114,9 +130,22 @@ def test_watch_reports_the_switchs_digests_counters_and_metrics(switch, v1model_
         while len(events.read_text().splitlines() if events.exists() else []) < len(want):
             assert time.monotonic() < deadline, "the watch did not receive every digest"
             time.sleep(0.2)
-        time.sleep(2.5)                               # a counter poll after the last frame
-        metrics = scrape(port)
-        tags = read_tags(opcua, {(e["plant"], e["monitor"]) for e in want})
+        counted = expected_counts(out, read_pcap(capture).messages["src"], [m.name for m in trained_entries.monitors])
+        deadline = time.monotonic() + 30             # counters are polled every second, however loaded the machine
+        while True:
+            metrics = scrape(port)
+            if all(metrics.get(k, 0.0) == n for k, n in counted.items()) or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+        last = {(e["plant"], e["monitor"]): e["to"] for e in want}
+        tagged = {(plant, monitor): (cls, CLASS_CODES[cls], *[counted[verdicts_key(c, monitor, plant)]
+                                                               for c in ("normal", "warning", "error")])
+                  for (plant, monitor), cls in last.items()}
+        while True:                                   # the tags follow the counts within COUNTS_S
+            tags = read_tags(opcua, set(last))
+            if tags == tagged or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
     finally:
         watch.send_signal(signal.SIGINT)              # Ctrl-C ends it cleanly
         stdout, stderr = watch.communicate(timeout=20)
@@ -128,27 +157,16 @@ def test_watch_reports_the_switchs_digests_counters_and_metrics(switch, v1model_
     assert (tmp_path / "timeline.png").stat().st_size > 10_000
 
     # the switch's counters == the verdicts in what came out of the switch
-    verdicts = np.array([int.from_bytes(f[OFF_VERDICT:OFF_VERDICT + 2], "big") for f in out])
-    src = read_pcap(capture).messages["src"]
-    names = [m.name for m in trained_entries.monitors]
-    for k, name in enumerate(names):
-        code = monitor_verdict(verdicts, k)
-        for plant in np.unique(src):
-            for cls, c in CLASS_CODES.items():
-                n = int(np.sum((src == plant) & (code == c)))
-                key = ("civic_verdicts_total", (("class", cls), ("monitor", name), ("plant", int_to_ip(int(plant)))))
-                assert metrics.get(key, 0.0) == n, key
+    for key, n in counted.items():
+        assert metrics.get(key, 0.0) == n, key
     assert metrics[("civic_events_total", ())] == len(want)
     assert metrics[("civic_last_digest_age_seconds", ())] >= 0
     assert metrics[("civic_switch_up", ())] == 1
-    last = {(e["plant"], e["monitor"]): e["to"] for e in want}
     for (plant, monitor), cls in last.items():
-        key = ("civic_class", (("monitor", monitor), ("plant", plant)))
-        assert metrics[key] == CLASS_CODES[cls]
-        # the same over OPC UA: the class of the last digest and the switch's counters
-        counts = [metrics.get(("civic_verdicts_total", (("class", c), ("monitor", monitor), ("plant", plant))), 0)
-                  for c in ("normal", "warning", "error")]
-        assert tags[(plant, monitor)] == (cls, CLASS_CODES[cls], *counts), (plant, monitor)
+        assert metrics[("civic_class", (("monitor", monitor), ("plant", plant)))] == CLASS_CODES[cls]
+    # the same over OPC UA: the class of the last digest and the switch's counters
+    for cell, value in tagged.items():
+        assert tags[cell] == value, cell
 
 
 def test_watch_an_unreachable_switch_is_one_line(tmp_path):

@@ -48,7 +48,7 @@ def test_live_frames_give_the_verdicts_and_events_of_replay(trained_entries, tmp
                     str(entries), "--events", str(want)], check=True, capture_output=True)
     live, got = tmp_path / written, tmp_path / "got.jsonl"
     with veth.VethPair() as pair:
-        proc = start(pair, "--entries", str(entries), "--events", str(got), "--write", str(live), "--duration", "6")
+        proc = start(pair, "--entries", str(entries), "--events", str(got), "--write", str(live), "--duration", "10")
         pair.send(rec, rate=20000)
         err = finish(proc)
     assert "0 dropped" in err, err

@@ -192,14 +192,16 @@ def mixed_pcapng(src, dst) -> None:
         fh.write(ng)
 
 
-def with_readings(dst, signal: str, value: int, t_from: float, t_to: float, case=LEAK_CASE) -> None:
-    """A bundled case with `signal` reading `value` (wire units) from t_from to t_to s (UDP
-    checksums set to 0: no checksum, valid for IPv4)."""
+def with_readings(dst, signal: str, value: int | None, t_from: float, t_to: float, case=LEAK_CASE) -> None:
+    """A bundled case with `signal` reading `value` (wire units; None: frozen at its reading at
+    t_from) from t_from to t_to s (UDP checksums set to 0: no checksum, valid for IPv4)."""
     cap = copy.deepcopy(read_pcap(case))
     t = cap.messages["t"] - cap.messages["t"][0]
     buf = np.frombuffer(cap.data, np.uint8)
     at = cap.offset[(t >= t_from) & (t < t_to)]
     field = OFF_PAYLOAD + 4 + 2 * SIGNALS.index(signal)
+    if value is None:
+        value = int(buf[at[0] + field]) << 8 | int(buf[at[0] + field + 1])
     buf[at + field], buf[at + field + 1] = value >> 8, value & 0xFF
     buf[at + OFF_UDP_CSUM] = buf[at + OFF_UDP_CSUM + 1] = 0
     cap.write(dst)

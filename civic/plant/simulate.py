@@ -732,6 +732,43 @@ def regularise(rec: Recording, dt: float) -> Recording:
 
 BEYOND_TANK = 1.5    # a reading this far beyond all the water its tank can hold is a fault code
 BEYOND_RANGE = 0.05  # a command this share of its range beyond it is no command
+# A noisy sensor repeats its exact reading in about 1 % of consecutive samples (four-tank
+# rigs: 0.3-2.5 %, never more than 4 in a row). A run of one reading that its own noise makes
+# this unlikely over the record is a frozen sensor (a gateway's stale value, a stuck
+# transmitter), not a level: left out like a fault code.
+FROZEN_CHANCE = 1e-6       # expected number of such runs by chance, at most
+FROZEN_MIN_SAMPLES = 10
+FROZEN_MAX_REPEAT = 0.2    # a signal repeating more often than this is too smooth to tell
+FROZEN_MIN_NOISE = 3.0     # the noise, in resolution steps, below which repeats are ordinary
+
+
+def frozen_runs(v: np.ndarray, readable: np.ndarray, resolution: float,
+                floor: float | None = None) -> list[tuple[int, int]]:
+    """Index ranges [i, j] over which a noisy signal repeats one exact reading far longer than
+    its own noise allows, below the highest reading elsewhere (stuck at the record's top is a
+    clip: sensor saturation) and not at the range's `floor` (an empty tank). `readable`: the
+    samples to judge (lost messages are filled on the grid and say nothing)."""
+    idx = np.flatnonzero(readable)
+    w = np.asarray(v, float)[idx]
+    if len(w) < 3 * FROZEN_MIN_SAMPLES:
+        return []
+    d2 = np.diff(w, 2)
+    noise = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
+    if noise <= 0.0 or noise < FROZEN_MIN_NOISE * resolution:
+        return []
+    starts = np.r_[0, np.flatnonzero(w[1:] != w[:-1]) + 1]
+    lengths = np.diff(np.r_[starts, len(w)])
+    repeats = int(np.sum(lengths - 1))
+    out = []
+    for a, n in zip(starts[lengths >= FROZEN_MIN_SAMPLES], lengths[lengths >= FROZEN_MIN_SAMPLES]):
+        p = max((repeats - (n - 1)) / max(len(w) - n, 1), 1.0 / len(w))   # the repeat rate elsewhere
+        others = np.r_[w[:a], w[a + n:]]
+        at_floor = floor is not None and w[a] <= floor + 1.5 * resolution
+        if p <= FROZEN_MAX_REPEAT and len(w) * p ** (n - 1) < FROZEN_CHANCE \
+                and w[a] < others.max() and not at_floor:
+            out.append((int(idx[a]), int(idx[a + n - 1])))
+    return out
+
 
 
 def with_unreadable_marked(rec: Recording, model: PlantModel) -> Recording:
@@ -743,8 +780,10 @@ def with_unreadable_marked(rec: Recording, model: PlantModel) -> Recording:
     an open-loop replay. `rec.unreadable` says which sensor, how many samples, when and what it
     read. A command beyond its range by BEYOND_RANGE of it (6553.5 % is 0xFFFF) says nothing of
     what was applied: those samples count as lost messages, the last readable command held.
-    Errors when more than half of the samples of a signal are unreadable."""
+    A sensor frozen at one reading inside its range (`frozen_runs`) is left out the same way
+    (`beyond` None). Errors when more than half of the samples of a signal are unreadable."""
     bad = np.zeros(len(rec.t), bool)
+    faulty = {}
     rec.unreadable = []
 
     def note(name, mask, v, beyond):
@@ -765,6 +804,21 @@ def with_unreadable_marked(rec: Recording, model: PlantModel) -> Recording:
         if mask.sum() > len(mask) // 2:
             raise CivicError(f"{rec.path}: sensor {s.name} reads beyond its tank in more than half of the samples")
         note(s.name, mask, v, "its tank")
+        rec.signals[s.name] = np.where(mask, np.interp(rec.t, rec.t[~mask], v[~mask]), v)
+        bad |= mask
+        faulty[s.name] = mask
+    for s in model.sensors:
+        if s.name not in rec.signals:
+            continue
+        v = np.asarray(rec.signals[s.name], float)
+        mask = np.zeros(len(v), bool)
+        for i, j in frozen_runs(v, ~(rec.gaps | faulty.get(s.name, False)), s.resolution, s.min):
+            mask[i:j + 1] = True
+        if not mask.any():
+            continue
+        if mask.sum() > len(mask) // 2:
+            raise CivicError(f"{rec.path}: sensor {s.name} is frozen at one reading in more than half of the samples")
+        note(s.name, mask, v, None)
         rec.signals[s.name] = np.where(mask, np.interp(rec.t, rec.t[~mask], v[~mask]), v)
         bad |= mask
     lost = rec.gaps.copy()
@@ -789,9 +843,12 @@ def with_unreadable_marked(rec: Recording, model: PlantModel) -> Recording:
 
 def unreadable_lines(rec: Recording) -> list[str]:
     """One warning line per signal `with_unreadable_marked` left out."""
-    return [f"{u['signal']} read {', '.join(f'{v:g}' for v in u['values'])} (beyond {u['beyond']}) in "
-            f"{u['samples']} samples, {u['from_s']:g}-{u['to_s']:g} s: "
-            + ("left out of the comparisons" if u["beyond"] == "its tank" else "counted as lost messages")
+    def said(u):
+        if u["beyond"] is None:
+            return f"frozen at {', '.join(f'{v:g}' for v in u['values'])} (one reading repeated beyond its noise)"
+        return f"read {', '.join(f'{v:g}' for v in u['values'])} (beyond {u['beyond']})"
+    return [f"{u['signal']} {said(u)} in {u['samples']} samples, {u['from_s']:g}-{u['to_s']:g} s: "
+            + ("counted as lost messages" if u["beyond"] == "its range" else "left out of the comparisons")
             for u in rec.unreadable]
 
 

@@ -1,4 +1,4 @@
-"""Recordings as diagnosis reads them: sensor fault codes and impossible commands left out."""
+"""Recordings as diagnosis reads them: sensor fault codes, frozen readings and impossible commands left out."""
 from __future__ import annotations
 
 import json
@@ -66,6 +66,44 @@ def test_readings_beyond_any_tank_are_unreadable_and_the_rest_kept(tmp_path):
     rec = data.load(path, model)
     assert [u["signal"] for u in rec.unreadable] == ["p1"] and rec.lost.sum() == 10
     assert np.all(rec.signals["p1"] <= 1.0)
+
+
+def test_a_frozen_reading_is_left_out_and_the_leak_still_found(tmp_path, capsys):
+    """L2 frozen for 120 s at its reading of 300 s (the fill test's drain-down, the record's
+    lowest L2). Before: a T2 leak, an L2 offset from 370 s and a pipe23 closure were named and
+    T3's leak was lost. Now the frozen samples are left out and said, and the leak is found
+    alone."""
+    path = tmp_path / "frozen.pcap"
+    with_readings(path, "l2", None, 300.0, 420.0)
+    assert main(["diagnose", str(path), "--json", str(tmp_path / "r.json"), "-q"]) == 0
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert [(f["mechanism"], f["component"], f["parameters"]["to"]) for f in rep["findings"]] == [("leak", "T3", "T4")]
+    assert rep["findings"][0]["parameters"]["c"] == pytest.approx(0.012, rel=0.05)
+    [u] = rep["unreadable"]
+    assert u["signal"] == "L2" and u["beyond"] is None and 1195 <= u["samples"] <= 1200
+    assert 299.5 <= u["from_s"] <= 300.5 and 419.5 <= u["to_s"] <= 420.0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "L2 frozen at" in err[0] and "300" in err[0] and "left out" in err[0]
+
+
+def test_a_brief_frozen_reading_on_a_clean_run_raises_no_alarm(tmp_path):
+    path = tmp_path / "frozen.pcap"
+    with_readings(path, "l4", None, 100.0, 102.0, CASES / "example_none" / "case.pcap")
+    assert main(["diagnose", str(path), "--json", str(tmp_path / "r.json"), "-q"]) == 0
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert rep["mismatch"] is False and rep["findings"] == []
+    assert [(u["signal"], u["samples"]) for u in rep["unreadable"]] == [("L4", 20)]
+
+
+def test_no_bundled_recording_reads_as_frozen():
+    """The rigs' own noise: exact repeats of 2-4 samples at most, no sample left out."""
+    model = PlantModel.from_toml(ROOT / "configs" / "plant.toml")
+    paths = sorted((ROOT / "traces").glob("*/*.pcap")) + sorted(CASES.glob("*/case.pcap"))
+    assert len(paths) > 30
+    for path in paths:
+        assert data.load(path, model).unreadable == [], path.name
+    ct = PlantModel.from_toml(ROOT / "configs" / "cascaded-tanks.toml")
+    assert data.load(ROOT / "traces" / "cascaded-tanks" / "estimation.csv", ct).unreadable == []   # 27 at the clip
 
 
 def test_a_recording_mostly_unreadable_is_one_line_error(tmp_path, capsys):

@@ -394,6 +394,27 @@ def test_sensor_saturation_offset_and_level():
     np.testing.assert_allclose(r["y"], expect, atol=1e-12)
 
 
+def test_frozen_runs_only_where_the_noise_rules_repeats_out():
+    from civic.plant.simulate import frozen_runs
+    rng = np.random.default_rng(7)
+    t = np.arange(6000) * 0.1
+    level = 5.0 + np.sin(t / 60.0)
+    y = np.round(level + rng.normal(0.0, 0.02, t.size), 3)       # the rig's noise and resolution
+    ok = np.ones(t.size, bool)
+    assert frozen_runs(y, ok, 0.001, 0.0) == []
+    frozen = y.copy()
+    frozen[3000:3010] = frozen[3000]                              # 1 s stuck: far beyond chance
+    assert frozen_runs(frozen, ok, 0.001, 0.0) == [(3000, 3009)]
+    frozen[4000:4020] = frozen[4000]
+    gappy = ok.copy()
+    gappy[4010] = False                                           # a lost message inside does not break it
+    assert frozen_runs(frozen, gappy, 0.001, 0.0) == [(3000, 3009), (4000, 4019)]
+    assert frozen_runs(np.round(level, 3), ok, 0.001, 0.0) == []  # noise-free: repeats say nothing
+    clipped = np.minimum(y, 5.5)                                  # a clip at the top: saturation, not frozen
+    empty = np.maximum(y - 5.5, 0.0)                              # an empty tank reads the range's floor
+    assert frozen_runs(clipped, ok, 0.001, 0.0) == [] and frozen_runs(empty, ok, 0.001, 0.0) == []
+
+
 def test_simulate_speed(plant):
     import time
 

@@ -34,6 +34,11 @@ COUNTS_EVERY_S = 1.0
 
 def open_capture(iface: str) -> socket.socket:
     """A non-blocking raw socket receiving every frame arriving on iface; one-line errors."""
+    if iface == "any":
+        # tcpdump's pseudo-device sees a frame once on every interface it crosses (a bridge and
+        # its port, both ends of a veth): each copy would be judged as a message of its own
+        raise CivicError("cannot capture on 'any': name the one interface the plant's messages arrive on "
+                         "(a frame crossing several interfaces would be counted once on each)")
     try:
         sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETH_P_ALL))
     except PermissionError:

@@ -67,3 +67,8 @@ def test_a_missing_interface_is_one_line_and_exit_2(trained_entries, tmp_path):
                            str(entries), "--duration", "1"], capture_output=True, text=True)
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == ["civic monitor: error: cannot capture on 'civic-nosuch': No such device"]
+    proc = subprocess.run([sys.executable, "-m", "civic", "monitor", "--iface", "any", "--entries",
+                           str(entries), "--duration", "1"], capture_output=True, text=True)
+    assert proc.returncode == 2
+    [line] = proc.stderr.strip().splitlines()
+    assert line.startswith("civic monitor: error: cannot capture on 'any': name the one interface")

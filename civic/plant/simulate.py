@@ -747,14 +747,15 @@ def frozen_runs(v: np.ndarray, readable: np.ndarray, resolution: float,
     """Index ranges [i, j] over which a noisy signal repeats one exact reading far longer than
     its own noise allows, below the highest reading elsewhere (stuck at the record's top is a
     clip: sensor saturation) and not at the range's `floor` (an empty tank). `readable`: the
-    samples to judge (lost messages are filled on the grid and say nothing)."""
+    samples to judge (lost messages are filled on the grid and say nothing). A sensor with no
+    stated `resolution` (Cascaded Tanks' volts) is not judged."""
     idx = np.flatnonzero(readable)
     w = np.asarray(v, float)[idx]
-    if len(w) < 3 * FROZEN_MIN_SAMPLES:
-        return []
+    if resolution <= 0.0 or len(w) < 3 * FROZEN_MIN_SAMPLES:
+        return []          # with no stated resolution, what an exact repeat means is unknown
     d2 = np.diff(w, 2)
     noise = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
-    if noise <= 0.0 or noise < FROZEN_MIN_NOISE * resolution:
+    if noise < FROZEN_MIN_NOISE * resolution:
         return []
     starts = np.r_[0, np.flatnonzero(w[1:] != w[:-1]) + 1]
     lengths = np.diff(np.r_[starts, len(w)])
@@ -768,7 +769,6 @@ def frozen_runs(v: np.ndarray, readable: np.ndarray, resolution: float,
                 and w[a] < others.max() and not at_floor:
             out.append((int(idx[a]), int(idx[a + n - 1])))
     return out
-
 
 
 def with_unreadable_marked(rec: Recording, model: PlantModel) -> Recording:

@@ -103,7 +103,7 @@ def test_no_bundled_recording_reads_as_frozen():
     for path in paths:
         assert data.load(path, model).unreadable == [], path.name
     ct = PlantModel.from_toml(ROOT / "configs" / "cascaded-tanks.toml")
-    assert data.load(ROOT / "traces" / "cascaded-tanks" / "estimation.csv", ct).unreadable == []   # 27 at the clip
+    assert data.load(ROOT / "traces" / "cascaded-tanks" / "estimation.csv", ct).unreadable == []   # no resolution
 
 
 def test_a_recording_mostly_unreadable_is_one_line_error(tmp_path, capsys):

@@ -754,6 +754,9 @@ def frozen_runs(v: np.ndarray, readable: np.ndarray, resolution: float,
     if resolution <= 0.0 or len(w) < 3 * FROZEN_MIN_SAMPLES:
         return []          # with no stated resolution, what an exact repeat means is unknown
     d2 = np.diff(w, 2)
+    d2 = d2[d2 != 0.0]     # the noise where the reading moves: a long freeze would take it to 0
+    if len(d2) < 3 * FROZEN_MIN_SAMPLES:
+        return []
     noise = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
     if noise < FROZEN_MIN_NOISE * resolution:
         return []

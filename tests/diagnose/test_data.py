@@ -112,3 +112,7 @@ def test_a_recording_mostly_unreadable_is_one_line_error(tmp_path, capsys):
     assert main(["diagnose", str(path), "-q"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "more than half of the samples" in err and "L3" in err
+    with_readings(path, "l3", None, 0.0, 400.0)
+    assert main(["diagnose", str(path), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "frozen at one reading in more than half of the samples" in err and "L3" in err

@@ -786,7 +786,6 @@ def with_unreadable_marked(rec: Recording, model: PlantModel) -> Recording:
     A sensor frozen at one reading inside its range (`frozen_runs`) is left out the same way
     (`beyond` None). Errors when more than half of the samples of a signal are unreadable."""
     bad = np.zeros(len(rec.t), bool)
-    faulty = {}
     rec.unreadable = []
 
     def note(name, mask, v, beyond):
@@ -794,36 +793,31 @@ def with_unreadable_marked(rec: Recording, model: PlantModel) -> Recording:
         rec.unreadable.append({"signal": name, "samples": int(mask.sum()), "beyond": beyond,
                                "from_s": round(float(at[0]), 3), "to_s": round(float(at[-1]), 3),
                                "values": sorted({float(x) for x in v[mask]})[:5]})
-    for s in model.sensors:
-        if s.name not in rec.signals or s.quantity != "volume":
-            continue
-        hold = min(model.tank(s.tank).capacity, model.total_volume or np.inf) * BEYOND_TANK * s.gain
-        v = np.asarray(rec.signals[s.name], float)
-        mask = np.abs(v - s.offset) > hold
-        if s.wire and s.wire in (rec.fields or {}):
-            mask |= np.asarray(rec.fields[s.wire]) >= 0xFFFF
-        if not mask.any():
-            continue
+
+    def leave_out(name, mask, v, beyond, what):
+        """Note a sensor's samples in `mask`, interpolate them from the rest, mark them bad."""
         if mask.sum() > len(mask) // 2:
-            raise CivicError(f"{rec.path}: sensor {s.name} reads beyond its tank in more than half of the samples")
-        note(s.name, mask, v, "its tank")
-        rec.signals[s.name] = np.where(mask, np.interp(rec.t, rec.t[~mask], v[~mask]), v)
-        bad |= mask
-        faulty[s.name] = mask
+            raise CivicError(f"{rec.path}: sensor {name} {what} in more than half of the samples")
+        note(name, mask, v, beyond)
+        rec.signals[name] = np.where(mask, np.interp(rec.t, rec.t[~mask], v[~mask]), v)
+        bad[mask] = True
     for s in model.sensors:
         if s.name not in rec.signals:
             continue
         v = np.asarray(rec.signals[s.name], float)
-        mask = np.zeros(len(v), bool)
-        for i, j in frozen_runs(v, ~(rec.gaps | faulty.get(s.name, False)), s.resolution, s.min):
-            mask[i:j + 1] = True
-        if not mask.any():
-            continue
-        if mask.sum() > len(mask) // 2:
-            raise CivicError(f"{rec.path}: sensor {s.name} is frozen at one reading in more than half of the samples")
-        note(s.name, mask, v, None)
-        rec.signals[s.name] = np.where(mask, np.interp(rec.t, rec.t[~mask], v[~mask]), v)
-        bad |= mask
+        fault = np.zeros(len(v), bool)
+        if s.quantity == "volume":
+            hold = min(model.tank(s.tank).capacity, model.total_volume or np.inf) * BEYOND_TANK * s.gain
+            fault = np.abs(v - s.offset) > hold
+            if s.wire and s.wire in (rec.fields or {}):
+                fault |= np.asarray(rec.fields[s.wire]) >= 0xFFFF
+            if fault.any():
+                leave_out(s.name, fault, v, "its tank", "reads beyond its tank")
+        frozen = np.zeros(len(v), bool)
+        for i, j in frozen_runs(v, ~(rec.gaps | fault), s.resolution, s.min):
+            frozen[i:j + 1] = True
+        if frozen.any():
+            leave_out(s.name, frozen, np.asarray(rec.signals[s.name], float), None, "is frozen at one reading")
     lost = rec.gaps.copy()
     for i in model.inputs:
         if i.name not in rec.signals or i.min is None or i.max is None:

@@ -17,7 +17,7 @@ and which structure transfers (fixed candidate sets, fitted jointly without elim
     python bench/bench_diagnose.py --structures ["NAME;NAME..."]
 
 Robustness sweep alone, every case printed (--off-grid: at the magnitudes of OFF_GRID instead):
-    python bench/bench_diagnose.py --robustness 1,2,3,4,5,6,7,8 [CASE,CASE...] [--off-grid]
+    python bench/bench_diagnose.py --robustness 1,2,3,4,5,6,7,8 [CASE,CASE...] [--off-grid] [--via-pcap]
 10 min closed-loop cases, the plant's coefficients off by up to +-4 % (calibration), one
 concealed mechanism of the catalogue (one to three magnitudes, small but significant) or none;
 prints per case and the rates: clean cases without alarm, and cases where the first
@@ -26,7 +26,9 @@ mechanism was active (a rim or a clip the levels never reach changes nothing). E
 prints, in sensor noises, how far its effect moves the open-loop replay (against the same plant
 without it) and how much of that is left beyond what calibrating the datasheet's coefficients
 explains; a miss with less than 3 left is marked as such in the tables (the calibration's
-+-5 % can absorb a small effect whole).
++-5 % can absorb a small effect whole). --via-pcap: each run is written to a pcap and read back
+by `civic diagnose`'s loader (wire rounding, the fault-code and frozen-sensor checks), as the
+hidden cases are called, instead of handing the simulation's arrays to the diagnosis.
 CIVIC_BENCH_CONTROLLER=pi runs the sweep under the PI loops instead of the MPC (the
 supervisor's setpoints and tests are the same).
 """
@@ -51,8 +53,6 @@ TARGETS = {600.0: 10.0, 3600.0: 60.0}
 def make_recording(path: Path, duration: float, seed: int = 5) -> None:
     from civic.plant.control import run_closed_loop
     from civic.plant.model import Link, PlantModel
-    from civic.plant.simulate import to_wire
-    from civic.wire import build_frames, write_pcap
 
     nominal = PlantModel.from_toml(ROOT / "configs" / "plant.toml")
     plant = nominal.copy()
@@ -60,6 +60,14 @@ def make_recording(path: Path, duration: float, seed: int = 5) -> None:
     plant.set("link.V2.coeff", 0.30 * 0.98)
     plant.links.append(Link("leak", from_="T3", to="T4", coeff=0.012, law="orifice"))
     res = run_closed_loop(plant, duration, controller="mpc", seed=seed, noise=True, controller_model=nominal)
+    write_case_pcap(path, nominal, res)
+
+
+def write_case_pcap(path: Path, nominal, res) -> None:
+    """A closed-loop run as the plant's gateway sends it: wire fields, one frame per sample."""
+    from civic.plant.simulate import to_wire
+    from civic.wire import build_frames, write_pcap
+
     fields = to_wire(nominal, res.signals)
     cols = ("l1", "l2", "l3", "l4", "p1", "v1", "v2")
     write_pcap(path, 1767225600.0 + res.t, build_frames({c: fields[c] for c in cols}))
@@ -308,7 +316,16 @@ def sweep_case(job) -> dict:
     res = run_closed_loop(plant, 600.0, controller=os.environ.get("CIVIC_BENCH_CONTROLLER", "mpc"), seed=seed,
                           noise=True, controller_model=nominal,
                           schedule=schedule)
-    d = diagnose(nominal, Recording(res.t, res.signals, res.fields, case))
+    if os.environ.get("CIVIC_BENCH_VIA_PCAP"):
+        # as the hidden cases are called: the run written to a pcap, read back by `civic diagnose`'s loader
+        from civic.diagnose import data
+
+        with tempfile.TemporaryDirectory() as tmp:
+            write_case_pcap(Path(tmp) / "case.pcap", nominal, res)
+            rec = data.load(Path(tmp) / "case.pcap", nominal)
+    else:
+        rec = Recording(res.t, res.signals, res.fields, case)
+    d = diagnose(nominal, rec)
     want = SWEEP[case][:2] if case in SWEEP else OFF_GRID_KINDS[case]
     active = True
     if case.startswith("overflow"):
@@ -548,7 +565,7 @@ def transfer_structures(names=None, n_init: int = 50) -> dict:
     from civic.diagnose import problem as P
     from civic.diagnose import fit as F
     from civic.diagnose.locate import localise
-    from civic.diagnose.noise import noise_sigma
+    from civic.plant.noise import noise_sigma
     from civic.diagnose.mechanisms import CATALOGUE, Coefficient
     from civic.diagnose.report import simulation_rmse
     from civic.plant.model import PlantModel
@@ -611,7 +628,9 @@ if __name__ == "__main__":
         sys.exit(0)
     if len(sys.argv) > 2 and sys.argv[1] == "--robustness":
         off_grid = "--off-grid" in sys.argv
-        rest = [a for a in sys.argv[3:] if a != "--off-grid"]
+        if "--via-pcap" in sys.argv:
+            os.environ["CIVIC_BENCH_VIA_PCAP"] = "1"   # the sweep's workers inherit it
+        rest = [a for a in sys.argv[3:] if a not in ("--off-grid", "--via-pcap")]
         sys.exit(robustness([int(s) for s in sys.argv[2].split(",")], rest[0].split(",") if rest else None,
                             off_grid=off_grid))
     sys.exit(main())

@@ -26,6 +26,7 @@ from civic.envelope import FAULT_VALVE
 from civic.entries import BALANCE_SHIFT, BAND_SUM_SHIFT, SLOPE_MAX, SLOPE_MIN, FlowTerm, MonitorEntries
 from civic.errors import CivicError
 from civic.plant.model import PlantModel
+from civic.plant.noise import robust_sigma
 from civic.plant.procedures import FAULT_CLASSES, class_of
 from civic.wire import CLASS_CODES, ip_to_int
 
@@ -286,7 +287,7 @@ class BalanceClassifier:
         self.direction_ = 1.0 if np.median(ratio[faulty]) >= 0 else -1.0
         r = self.direction_ * ratio
         normal = scored & (y == 1)
-        self.sigma_ = float(1.4826 * np.median(np.abs(resid[normal] - np.median(resid[normal]))))
+        self.sigma_ = robust_sigma(resid[normal])
         warn, err = scored & (y == 2), scored & (y == 3)
         # fit the cuts where the classes are meant to be told apart: enough flow for the noise
         visible = faulty & (band > self.noise_margin * self.sigma_)

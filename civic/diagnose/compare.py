@@ -31,10 +31,9 @@ from scipy.signal import lfilter
 
 from civic.errors import CivicError
 from civic.plant.model import OUTSIDE, PlantModel
+from civic.plant.noise import noise_sigma
 from civic.plant.simulate import Recording, initial_state, inputs_matrix, measured_state, simulate
 from civic.plant.simulate import flows as plant_flows
-
-from .noise import noise_sigma
 
 N_BLOCKS = 6          # interleaved train / held-out blocks (even: train, odd: held out)
 INVENTORY = "inventory"   # equation-error column: measured sum of the volumes vs the stated total

@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from civic.plant.model import PlantModel
+from civic.plant.noise import noise_sigma, robust_sigma
 from civic.plant.simulate import Recording
 
 from .backward import backward_eliminate, check_integrator
@@ -37,7 +38,6 @@ from .dating import redate
 from .forward import forward_select
 from .locate import localise, suspect_everywhere
 from .mechanisms import CATALOGUE, Coefficient, Mechanism
-from .noise import noise_sigma, robust_sigma
 from .problem import Calibration, Diagnosis, FitResult, Problem, make_engine
 from .replay import replay_select
 

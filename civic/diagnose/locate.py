@@ -21,11 +21,11 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from civic.plant.model import PlantModel
+from civic.plant.noise import noise_sigma, robust_sigma
 from civic.plant.simulate import Recording
 
 from .compare import INVENTORY, INVENTORY_BAND, RIM_GAP, RIM_TOL, closed_gaps
 from .mechanisms.base import ONSET_Z, drives_no_flow, tanks_touching
-from .noise import noise_sigma, robust_sigma
 
 BLOCK = 6          # rows averaged per block in the lack-of-fit statistic
 FLAG_RATIO = 2.0   # block-mean chi-square / expected above which a column is flagged

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from civic.plant.model import PlantModel
+from civic.plant.noise import noise_sigma
 from civic.plant.simulate import Recording
 
 from .compare import SimulationError
 from .forward import indistinguishable, outranked
 from .mechanisms import Mechanism
-from .noise import noise_sigma
 from .problem import Calibration, Diagnosis, Problem, extra_starts, fold_gains, significant, tried_record
 
 # the replay stage: a fully measured plant whose balances leave no finding may still replay away

@@ -23,6 +23,7 @@ import numpy as np
 
 from civic.errors import CivicError
 from civic.plant.model import OUTSIDE, PlantModel
+from civic.plant.noise import robust_sigma
 
 __all__ = ["CompiledModel", "compile_model", "simulate", "flows", "Flows", "measure", "to_wire", "from_wire",
            "load_recording", "initial_state", "measured_state", "Recording", "inputs_matrix"]
@@ -757,7 +758,7 @@ def frozen_runs(v: np.ndarray, readable: np.ndarray, resolution: float,
     d2 = d2[d2 != 0.0]     # the noise where the reading moves: a long freeze would take it to 0
     if len(d2) < 3 * FROZEN_MIN_SAMPLES:
         return []
-    noise = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
+    noise = robust_sigma(d2) / math.sqrt(6.0)
     if noise < FROZEN_MIN_NOISE * resolution:
         return []
     starts = np.r_[0, np.flatnonzero(w[1:] != w[:-1]) + 1]

@@ -94,7 +94,7 @@ def test_change_point_judges_an_early_step_against_the_spread_left_around_it():
     robust spread (what the diagnosis weighs a balance by) is mostly the fault, yet the step
     stands out against the noise left around the two-share fit; the bracket stays as wide as
     that whole-residual spread makes it."""
-    from civic.diagnose.noise import robust_sigma
+    from civic.plant.noise import robust_sigma
 
     rng = np.random.default_rng(5)
     n, noise = 360, 0.02

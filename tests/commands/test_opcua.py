@@ -21,6 +21,7 @@ from civic.wire import read_pcap, write_pcap
 from data import ROOT, TRAINING
 from frames import interleave
 import veth
+from waiting import wait_lines
 
 pytestmark = pytest.mark.skipif(veth.why_not() is not None, reason=veth.why_not() or "")
 
@@ -59,15 +60,6 @@ def result_line(out: str) -> str:
     lines = [line for line in out.splitlines() if line.startswith('{"changes"')]
     assert lines, "the client printed no result:\n" + out
     return lines[-1]
-
-
-def wait_lines(path: Path, n: int, timeout: float = 60.0) -> None:
-    """Until the monitor has written n event lines, however slow this machine: it writes each line
-    before it hands the change to the OPC UA server."""
-    deadline = time.monotonic() + timeout
-    while not (path.exists() and len(path.read_text().splitlines()) >= n):
-        assert time.monotonic() < deadline, f"the monitor wrote fewer than {n} events in {timeout:g} s"
-        time.sleep(0.05)
 
 
 def cell(ev: dict) -> str:
@@ -114,13 +106,15 @@ def test_a_subscribed_client_sees_every_change_in_order_and_the_model_counts(sta
             line = monitor.stderr.readline()
             assert line.startswith("monitoring") and f"OPC UA on {ENDPOINT}" in line, line + monitor.stderr.read()
             pair.send(rec, rate=20000)
-            wait_lines(got_events, len(first))         # a client subscribing earlier would see 'none' first
+            # the monitor writes each line before it hands the change to the OPC UA server; a
+            # client subscribing earlier would see 'none' first
+            wait_lines(got_events, len(first), 60.0, "the monitor's events")
             client = pair.popen(*CLIENTS[stack], ENDPOINT, str(tmp_path / "cells.json"),
                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             lines = iter(client.stdout.readline, "")       # node-opcua may print notices first
             assert any(line.strip() == "subscribed" for line in lines), "the client ended before subscribing"
             pair.send(rest, rate=20000)
-            wait_lines(got_events, len(want))
+            wait_lines(got_events, len(want), 60.0, "the monitor's events")
             time.sleep(2.5)                            # counts: every 1 s from the switch, 0.25 s to the tags
             out, err = client.communicate("done\n", timeout=60)
             assert client.returncode == 0, err

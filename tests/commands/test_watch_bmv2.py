@@ -20,6 +20,7 @@ import pytest
 from civic.wire import CLASS_CODES, OFF_VERDICT, int_to_ip, monitor_verdict, read_pcap
 from frames import changing_fleet
 from needs import BMV2
+from waiting import wait_lines
 
 pytestmark = BMV2
 
@@ -126,10 +127,7 @@ def test_watch_reports_the_switchs_digests_counters_and_metrics(switch, v1model_
         cap = read_pcap(capture)
         out = switch.send_frames([cap.frame(i) for i in range(len(cap))], frame_timeout=1.0)
         assert all(f is not None for f in out)
-        deadline = time.monotonic() + 20
-        while len(events.read_text().splitlines() if events.exists() else []) < len(want):
-            assert time.monotonic() < deadline, "the watch did not receive every digest"
-            time.sleep(0.2)
+        wait_lines(events, len(want), 20.0, "the watch's events from the switch's digests")
         counted = expected_counts(out, read_pcap(capture).messages["src"], [m.name for m in trained_entries.monitors])
         deadline = time.monotonic() + 30             # counters are polled every second, however loaded the machine
         while True:

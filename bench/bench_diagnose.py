@@ -28,7 +28,8 @@ without it) and how much of that is left beyond what calibrating the datasheet's
 explains; a miss with less than 3 left is marked as such in the tables (the calibration's
 +-5 % can absorb a small effect whole). --via-pcap: each run is written to a pcap and read back
 by `civic diagnose`'s loader (wire rounding, the fault-code and frozen-sensor checks), as the
-hidden cases are called, instead of handing the simulation's arrays to the diagnosis.
+hidden cases are called, instead of handing the simulation's arrays to the diagnosis; a run the
+loader leaves samples of out (a simulated run has none) is a miss, its warning lines printed.
 CIVIC_BENCH_CONTROLLER=pi runs the sweep under the PI loops instead of the MPC (the
 supervisor's setpoints and tests are the same).
 """
@@ -319,12 +320,15 @@ def sweep_case(job) -> dict:
     if os.environ.get("CIVIC_BENCH_VIA_PCAP"):
         # as the hidden cases are called: the run written to a pcap, read back by `civic diagnose`'s loader
         from civic.diagnose import data
+        from civic.plant.simulate import unreadable_lines
 
         with tempfile.TemporaryDirectory() as tmp:
             write_case_pcap(Path(tmp) / "case.pcap", nominal, res)
             rec = data.load(Path(tmp) / "case.pcap", nominal)
+        left_out = unreadable_lines(rec)   # what the loader left out: a simulated run should have none
     else:
         rec = Recording(res.t, res.signals, res.fields, case)
+        left_out = []
     d = diagnose(nominal, rec)
     want = SWEEP[case][:2] if case in SWEEP else OFF_GRID_KINDS[case]
     active = True
@@ -373,7 +377,8 @@ def sweep_case(job) -> dict:
         ok = ok and (_ended(p, SPELL[1]) if case.startswith("spell") else "until" not in p)
         named[0] += (f"from {p.get('onset', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})"
                      + (f" {_until(p)}" if "until" in p else ""),)
-    return {"case": case, "mag": mag, "seed": seed, "active": active, "ok": ok, "findings": named,
+    return {"case": case, "mag": mag, "seed": seed, "active": active, "ok": ok and not left_out,
+            "findings": named + left_out,
             "flagged": d.loc.flagged, "effect": replay_change(plant, sweep_plant(nominal, "clean", 0.0, seed), res),
             "excess": replay_change(plant, d.model_calibrated, res)}
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -861,7 +862,9 @@ def _load_csv(path: str, model: PlantModel) -> Recording:
     if tcol is None:
         raise CivicError(f"{path}: CSV needs a header with a time column ({', '.join(TIME_COLUMNS)})")
     try:
-        raw = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
+        with warnings.catch_warnings():   # a header without rows: said below as 'no data rows'
+            warnings.simplefilter("ignore", UserWarning)
+            raw = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
     except ValueError as exc:
         # numpy lists every ragged row on lines of their own; the first says enough
         first = re.search(r"Line #(\d+) \(got (\d+) columns instead of (\d+)\)", str(exc))

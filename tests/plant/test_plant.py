@@ -509,6 +509,16 @@ def test_cli_csv_equals_pcap_and_no_noise_is_deterministic(tmp_path, capsys):
     assert (tmp_path / "b1.pcap").read_bytes() == (tmp_path / "b2.pcap").read_bytes()
 
 
+def test_cli_csv_without_rows_is_one_line(tmp_path):
+    """A CSV recording with a header and no rows: one error line on stderr, no library warning
+    before it (numpy warns of an empty input), exit 2."""
+    (tmp_path / "r.csv").write_text("t_s,l1,l2,l3,l4,p1,v1,v2\n")
+    res = subprocess.run([sys.executable, "-m", "civic", "simulate", "--model", str(PLANT), "--inputs",
+                          str(tmp_path / "r.csv")], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines() == [f"civic simulate: error: {tmp_path / 'r.csv'}: no data rows"]
+
+
 def test_cli_labels_row(tmp_path):
     lab = tmp_path / "labels.csv"
     for cls in ("normal", "error"):

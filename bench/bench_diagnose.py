@@ -7,8 +7,8 @@ written to a pcap; every case is diagnosed through the CLI code path (load, diag
 report, no plot), with a rich progress bar on a terminal.
 
 Run: python bench/bench_diagnose.py  (or `python -m bench`). Prints one line per case, then
-the robustness tables below on seed 1 (CIVIC_BENCH_SEEDS=1,2,... for more; ~6 min a seed on
-2 cores), misses listed.
+the robustness tables below on seed 1 (CIVIC_BENCH_SEEDS=1,2,... for more; ~11 min a seed on
+2 cores), misses listed, each run read back from a pcap as with --via-pcap below.
 
 Cascaded Tanks transfer (fit on one half of the estimation record, score on the other):
     python bench/bench_diagnose.py --transfer
@@ -130,7 +130,7 @@ def main() -> int:
     # sweep is --robustness 1,...,8
     seeds = [int(s) for s in os.environ.get("CIVIC_BENCH_SEEDS", BENCH_SEEDS).split(",")]
     print(f"\nrobustness, seeds {','.join(map(str, seeds))} (misses listed):", flush=True)
-    robustness(seeds, quiet=True)
+    robustness(seeds, quiet=True, via_pcap=True)
     return 0 if ok else 1
 
 
@@ -304,7 +304,7 @@ def sweep_case(job) -> dict:
     from civic.plant.model import PlantModel
     from civic.plant.simulate import Recording
 
-    case, mag, seed = job
+    case, mag, seed, via_pcap = job
     nominal = PlantModel.from_toml(ROOT / "configs" / "plant.toml")
     plant = sweep_plant(nominal, case, mag, seed)
     schedule = None
@@ -317,7 +317,7 @@ def sweep_case(job) -> dict:
     res = run_closed_loop(plant, 600.0, controller=os.environ.get("CIVIC_BENCH_CONTROLLER", "mpc"), seed=seed,
                           noise=True, controller_model=nominal,
                           schedule=schedule)
-    if os.environ.get("CIVIC_BENCH_VIA_PCAP"):
+    if via_pcap:
         # as the hidden cases are called: the run written to a pcap, read back by `civic diagnose`'s loader
         from civic.diagnose import data
         from civic.plant.simulate import unreadable_lines
@@ -410,12 +410,12 @@ def replay_change(plant, other, res) -> float:
 
 
 def robustness(seeds: list[int], cases: list[str] | None = None, quiet: bool = False,
-               off_grid: bool = False) -> int:
+               off_grid: bool = False, via_pcap: bool = False) -> int:
     from collections import defaultdict
     from multiprocessing import Pool
 
     grid = OFF_GRID if off_grid else {c: mags for c, (_, _, mags) in SWEEP.items()}
-    jobs = [(c, mag, s) for c, mags in grid.items() if not cases or c in cases for mag in mags for s in seeds]
+    jobs = [(c, mag, s, via_pcap) for c, mags in grid.items() if not cases or c in cases for mag in mags for s in seeds]
 
     rates = defaultdict(lambda: [0, 0, 0, 0])
     with Pool(int(os.environ.get("CIVIC_BENCH_PROCS", "2"))) as pool:
@@ -633,9 +633,7 @@ if __name__ == "__main__":
         sys.exit(0)
     if len(sys.argv) > 2 and sys.argv[1] == "--robustness":
         off_grid = "--off-grid" in sys.argv
-        if "--via-pcap" in sys.argv:
-            os.environ["CIVIC_BENCH_VIA_PCAP"] = "1"   # the sweep's workers inherit it
         rest = [a for a in sys.argv[3:] if a not in ("--off-grid", "--via-pcap")]
         sys.exit(robustness([int(s) for s in sys.argv[2].split(",")], rest[0].split(",") if rest else None,
-                            off_grid=off_grid))
+                            off_grid=off_grid, via_pcap="--via-pcap" in sys.argv))
     sys.exit(main())

@@ -54,6 +54,7 @@ TARGETS = {600.0: 10.0, 3600.0: 60.0}
 def make_recording(path: Path, duration: float, seed: int = 5) -> None:
     from civic.plant.control import run_closed_loop
     from civic.plant.model import Link, PlantModel
+    from civic.plant.simulate import write_recording
 
     nominal = PlantModel.from_toml(ROOT / "configs" / "plant.toml")
     plant = nominal.copy()
@@ -61,17 +62,7 @@ def make_recording(path: Path, duration: float, seed: int = 5) -> None:
     plant.set("link.V2.coeff", 0.30 * 0.98)
     plant.links.append(Link("leak", from_="T3", to="T4", coeff=0.012, law="orifice"))
     res = run_closed_loop(plant, duration, controller="mpc", seed=seed, noise=True, controller_model=nominal)
-    write_case_pcap(path, nominal, res)
-
-
-def write_case_pcap(path: Path, nominal, res) -> None:
-    """A closed-loop run as the plant's gateway sends it: wire fields, one frame per sample."""
-    from civic.plant.simulate import to_wire
-    from civic.wire import build_frames, write_pcap
-
-    fields = to_wire(nominal, res.signals)
-    cols = ("l1", "l2", "l3", "l4", "p1", "v1", "v2")
-    write_pcap(path, 1767225600.0 + res.t, build_frames({c: fields[c] for c in cols}))
+    write_recording(str(path), nominal, res.t, res.signals)
 
 
 def time_diagnose(path: Path, model_path: Path = ROOT / "configs" / "plant.toml", n_init: int = 1,
@@ -320,11 +311,11 @@ def sweep_case(job) -> dict:
     if via_pcap:
         # as the hidden cases are called: the run written to a pcap, read back by `civic diagnose`'s loader
         from civic.diagnose import data
-        from civic.plant.simulate import unreadable_lines
+        from civic.plant.simulate import unreadable_lines, write_recording
 
         with tempfile.TemporaryDirectory() as tmp:
-            write_case_pcap(Path(tmp) / "case.pcap", nominal, res)
-            rec = data.load(Path(tmp) / "case.pcap", nominal)
+            write_recording(f"{tmp}/case.pcap", nominal, res.t, res.signals)
+            rec = data.load(f"{tmp}/case.pcap", nominal)
         left_out = unreadable_lines(rec)   # what the loader left out: a simulated run should have none
     else:
         rec = Recording(res.t, res.signals, res.fields, case)

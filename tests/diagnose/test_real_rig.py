@@ -416,16 +416,13 @@ def _bent_l2_through_pcap(nominal, draw, controller, seed, tmp_path):
     and the selection, hang on it)."""
     from civic.diagnose import data
     from civic.plant.control import run_closed_loop
-    from civic.plant.simulate import to_wire
-    from civic.wire import build_frames, write_pcap
+    from civic.plant.simulate import write_recording
 
     plant = _bench_draw(nominal, *draw)
     s = plant.find("sensor", "L2")
     s.curvature, s.pivot = 0.02, 5.0
     res = run_closed_loop(plant, 600.0, controller=controller, seed=seed, noise=True, controller_model=nominal)
-    fields = to_wire(nominal, res.signals)
-    write_pcap(tmp_path / "case.pcap", 1767225600.0 + res.t,
-               build_frames({c: fields[c] for c in ("l1", "l2", "l3", "l4", "p1", "v1", "v2")}))
+    write_recording(str(tmp_path / "case.pcap"), nominal, res.t, res.signals)
     return data.load(tmp_path / "case.pcap", nominal)
 
 

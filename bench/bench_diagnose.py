@@ -11,7 +11,8 @@ the robustness tables below on seed 1 (CIVIC_BENCH_SEEDS=1,2,... for more; ~11 m
 2 cores), misses listed, each run read back from a pcap as with --via-pcap below.
 
 Cascaded Tanks transfer (fit on one half of the estimation record, score on the other):
-    python bench/bench_diagnose.py --transfer
+    python bench/bench_diagnose.py --transfer [OFFSET,OFFSET...]
+(the record cut at its middle, or that many samples after it: e.g. -64,-32,0,32,64)
 and which structure transfers (fixed candidate sets, fitted jointly without elimination;
 ~15 min on one core):
     python bench/bench_diagnose.py --structures ["NAME;NAME..."]
@@ -438,10 +439,9 @@ def robustness(seeds: list[int], cases: list[str] | None = None, quiet: bool = F
 # ---------------------------------------------------------------------------------------
 # Cascaded Tanks transfer: fit on one half of the estimation record, score on the other
 # ---------------------------------------------------------------------------------------
-def transfer(n_init: int = 50) -> dict:
-    """`civic diagnose` on each half of the Cascaded Tanks estimation record, the improved model
-    scored on the other half (open-loop simulation, first `n_init` samples set the state and are
-    not scored, as `civic simulate --init-samples`). The validation record is not used."""
+def _transfer_job(job) -> dict:
+    """One direction of one split: `civic diagnose` on the part before (or after) the split
+    point, the improved model scored on the rest."""
     import numpy as np
 
     from civic.diagnose import data
@@ -450,35 +450,63 @@ def transfer(n_init: int = 50) -> dict:
     from civic.plant.model import PlantModel
     from civic.plant.simulate import Recording
 
+    offset, fit_first, n_init = job
     data_path, model_path, _ = CASCADED
     model = PlantModel.from_toml(model_path)
     rec = data.load(data_path, model)
     n = len(rec.t)
-    halves = {"first": slice(0, n // 2), "second": slice(n // 2, n)}
+    cut = n // 2 + offset
+    parts = {"first": slice(0, cut), "second": slice(cut, n)}
 
     def part(sl, name):
         sig = {k: np.asarray(v)[sl] for k, v in rec.signals.items()}
         t = np.asarray(rec.t)[sl]
-        return Recording(t - t[0], sig, None, f"{rec.path} ({name} half)")
+        return Recording(t - t[0], sig, None, f"{rec.path} ({name} part)")
 
+    a, b = ("first", "second") if fit_first else ("second", "first")
+    ra, rb = part(parts[a], a), part(parts[b], b)
+    t0 = time.perf_counter()
+    d = diagnose(model, ra, n_init=n_init)
+    el = time.perf_counter() - t0
+    own, _ = simulation_rmse(d.model_improved, ra, n_init, n_init)
+    other, _ = simulation_rmse(d.model_improved, rb, n_init, n_init)
+    nom, _ = simulation_rmse(model, rb, n_init, n_init)
+    return {"offset": offset, "direction": f"{a}->{b}", "fit_rmse": own["y_V"], "transfer_rmse": other["y_V"],
+            "nominal_on_other": nom["y_V"], "findings": [f["mechanism"].label for f in d.findings],
+            "parameters": [f["fit"].mechanisms[-1].report_parameters() for f in d.findings], "seconds": round(el, 1)}
+
+
+def transfer(n_init: int = 50, offsets=(0,)) -> dict:
+    """`civic diagnose` on each part of the Cascaded Tanks estimation record cut at its middle
+    (plus each of `offsets` samples), the improved model scored on the other part (open-loop
+    simulation, first `n_init` samples set the state and are not scored, as `civic simulate
+    --init-samples`). Several cuts show how far the figure moves with where the record is cut:
+    which findings survive elimination on half a record is chaotic. The validation record is
+    not used."""
+    from multiprocessing import Pool
+
+    import numpy as np
+
+    jobs = [(o, first, n_init) for o in offsets for first in (True, False)]
     out = {}
-    for a, b in (("first", "second"), ("second", "first")):
-        ra, rb = part(halves[a], a), part(halves[b], b)
-        t0 = time.perf_counter()
-        d = diagnose(model, ra, n_init=n_init)
-        el = time.perf_counter() - t0
-        own, _ = simulation_rmse(d.model_improved, ra, n_init, n_init)
-        other, _ = simulation_rmse(d.model_improved, rb, n_init, n_init)
-        nom, _ = simulation_rmse(model, rb, n_init, n_init)
-        out[f"{a}->{b}"] = {"fit_rmse": own["y_V"], "transfer_rmse": other["y_V"], "nominal_on_other": nom["y_V"],
-                            "findings": [f["mechanism"].label for f in d.findings], "seconds": round(el, 1)}
-        print(f"{a} half -> {b} half: fitted {own['y_V']:.3f} V on its own half, {other['y_V']:.3f} V on the "
-              f"other (nominal {nom['y_V']:.3f} V); {el:.0f} s; findings: "
-              + ", ".join(f"{f['mechanism'].label} {f['fit'].mechanisms[-1].report_parameters()}" for f in d.findings), flush=True)
-    mean = float(np.mean([v["transfer_rmse"] for v in out.values()]))
-    print(f"half -> half transfer RMSE (mean of both directions): {mean:.3f} V")
-    out["mean_transfer_rmse"] = mean
-    return out
+    with Pool(min(len(jobs), int(os.environ.get("CIVIC_BENCH_PROCS", "2")))) as pool:
+        for r in pool.imap(_transfer_job, jobs):
+            out[f"{r['offset']:+d} {r['direction']}"] = r
+            a, b = r["direction"].split("->")
+            print(f"cut {r['offset']:+d}: {a} part -> {b} part: fitted {r['fit_rmse']:.3f} V on its own part, "
+                  f"{r['transfer_rmse']:.3f} V on the other (nominal {r['nominal_on_other']:.3f} V); {r['seconds']:.0f} s; "
+                  "findings: " + ", ".join(f"{f} {p}" for f, p in zip(r["findings"], r["parameters"])), flush=True)
+    for o in offsets:
+        pair = [v["transfer_rmse"] for v in out.values() if v["offset"] == o]
+        print(f"cut {o:+d}: transfer RMSE (mean of both directions) {np.mean(pair):.3f} V")
+    rmse = [v["transfer_rmse"] for v in out.values()]
+    mean = float(np.mean(rmse))
+    if len(offsets) > 1:
+        print(f"over {len(offsets)} cuts: mean {mean:.3f} V, median {np.median(rmse):.3f} V, "
+              f"range {min(rmse):.3f}-{max(rmse):.3f} V")
+    else:
+        print(f"half -> half transfer RMSE (mean of both directions): {mean:.3f} V")
+    return {"runs": out, "mean_transfer_rmse": mean}
 
 
 # ---------------------------------------------------------------------------------------
@@ -617,7 +645,7 @@ def transfer_structures(names=None, n_init: int = 50) -> dict:
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--transfer":
-        transfer()
+        transfer(offsets=[int(o) for o in sys.argv[2].split(",")] if len(sys.argv) > 2 else (0,))
         sys.exit(0)
     if len(sys.argv) > 1 and sys.argv[1] == "--structures":
         transfer_structures(sys.argv[2].split(";") if len(sys.argv) > 2 else None)

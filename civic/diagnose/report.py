@@ -160,7 +160,7 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
                 ev.append("active " + ", ".join(f"{a:g}-{b:g} s" for a, b in intervals[:4]))
             if judged.get(mech.label) == []:
                 ev.append("kept unjudged: no fold of the cross-validation sees it act in both its training "
-                          "and held-out rows")
+                          "and held-out rows with its held-out readings within those of its training")
         else:
             ev += [r for r in diag.loc.regimes if r.split(":")[0] in (mech.component, params.get("to"))]
             if mech.component in diag.loc.pinned:

@@ -145,27 +145,34 @@ def test_split_overflow_fraction_is_fitted():
     assert abs(p["fraction"] - 0.5) < 0.1, p
 
 
+def _cut_record(offset: int):
+    """The nominal model and the estimation record cut `offset` samples after its middle: both
+    parts, each timed from its own start."""
+    from civic.diagnose import data
+    from civic.plant.model import PlantModel
+    from civic.plant.simulate import Recording
+
+    model = PlantModel.from_toml(MODEL)
+    rec = data.load(DATA, model)
+    cut = len(rec.t) // 2 + offset
+
+    def part(sl):
+        t = np.asarray(rec.t)[sl]
+        return Recording(t - t[0], {k: np.asarray(v)[sl] for k, v in rec.signals.items()}, None, "part")
+
+    return model, part(slice(0, cut)), part(slice(cut, None))
+
+
 def test_half_record_keeps_the_spill_no_fold_can_judge():
     """The second half of the record: T2 reaches its sensor's clip once, in the last block, so no
     fold of the blocked CV sees its spill act both in training and held out; the spill stays
     (the pooled error had dropped it, and the model then stored water above the sensor's range
     on the first half's long overflow: 0.36 V there). Its improved model transfers to the first
     half (`--init-samples 50` protocol) within 0.25 V; the validation record is not used."""
-    from civic.diagnose import data
     from civic.diagnose.fit import diagnose
     from civic.diagnose.report import build_report, simulation_rmse
-    from civic.plant.model import PlantModel
-    from civic.plant.simulate import Recording
 
-    model = PlantModel.from_toml(MODEL)
-    rec = data.load(DATA, model)
-    n = len(rec.t)
-
-    def part(sl):
-        t = np.asarray(rec.t)[sl]
-        return Recording(t - t[0], {k: np.asarray(v)[sl] for k, v in rec.signals.items()}, None, "half")
-
-    first, second = part(slice(0, n // 2)), part(slice(n // 2, n))
+    model, first, second = _cut_record(0)
     d = diagnose(model, second, n_init=50)
     rep = build_report(d, second, 50, 50)
     judged = {r["finding"]: r["judged_by_folds"] for r in rep["fit"]["ablation"]["without"]}
@@ -183,21 +190,10 @@ def test_a_fold_that_extrapolates_judges_no_finding():
     whose removal the pooled error then chose; the model without the spill missed the other
     part's long overflow by 0.55 V. Judged by the folds whose held-out readings stay within their
     training's, the spill stays and the model transfers."""
-    from civic.diagnose import data
     from civic.diagnose.fit import diagnose
     from civic.diagnose.report import build_report, simulation_rmse
-    from civic.plant.model import PlantModel
-    from civic.plant.simulate import Recording
 
-    model = PlantModel.from_toml(MODEL)
-    rec = data.load(DATA, model)
-    cut = len(rec.t) // 2 - 32
-
-    def part(sl):
-        t = np.asarray(rec.t)[sl]
-        return Recording(t - t[0], {k: np.asarray(v)[sl] for k, v in rec.signals.items()}, None, "part")
-
-    head, tail = part(slice(0, cut)), part(slice(cut, None))
+    model, head, tail = _cut_record(-32)
     d = diagnose(model, tail, n_init=50)
     rep = build_report(d, tail, 50, 50)
     judged = {r["finding"]: r["judged_by_folds"] for r in rep["fit"]["ablation"]["without"]}
@@ -212,21 +208,10 @@ def test_joint_fit_leaves_the_nominal_calibrations_basin():
     ended in, at 10x the cost, and the improved model fitted its own part at 0.56 V (nominal
     0.61 V). Started from the datasheet's calibration too, the fit reaches the basin of every
     other cut of the record and transfers to the rest of it."""
-    from civic.diagnose import data
     from civic.diagnose.fit import diagnose
     from civic.diagnose.report import simulation_rmse
-    from civic.plant.model import PlantModel
-    from civic.plant.simulate import Recording
 
-    model = PlantModel.from_toml(MODEL)
-    rec = data.load(DATA, model)
-    cut = len(rec.t) // 2 - 64
-
-    def part(sl):
-        t = np.asarray(rec.t)[sl]
-        return Recording(t - t[0], {k: np.asarray(v)[sl] for k, v in rec.signals.items()}, None, "part")
-
-    head, rest = part(slice(0, cut)), part(slice(cut, None))
+    model, head, rest = _cut_record(-64)
     d = diagnose(model, head, n_init=50)
     assert simulation_rmse(d.model_improved, head, 50, 50)[0]["y_V"] < 0.2
     assert simulation_rmse(d.model_improved, rest, 50, 50)[0]["y_V"] < 0.3

@@ -644,6 +644,12 @@ def transfer_structures(names=None, n_init: int = 50) -> dict:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] in ("-h", "--help"):
+        print(__doc__)
+        sys.exit(0)
+    if len(sys.argv) > 1 and sys.argv[1] not in ("--transfer", "--structures", "--robustness") \
+            or len(sys.argv) == 2 and sys.argv[1] == "--robustness":
+        sys.exit(f"bench_diagnose: unknown arguments {' '.join(sys.argv[1:])!r} (--help lists the modes)")
     if len(sys.argv) > 1 and sys.argv[1] == "--transfer":
         transfer(offsets=[int(o) for o in sys.argv[2].split(",")] if len(sys.argv) > 2 else (0,))
         sys.exit(0)

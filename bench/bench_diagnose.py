@@ -195,7 +195,7 @@ OFF_GRID = {
     "deadtime_P1": (1.5,), "deadtime_V2": (3.0,), "head_P1": (0.03,),
     "overflow_T1": (8.8,), "spill_T2": (0.04,), "valve_V1": (1.4,), "valve_V2": (1.3,),
     "saturation_L1": (8.8,), "saturation_L2": (7.5,), "saturation_L3": (6.5,),
-    "flowlaw_pipe23": (0.45, 0.65, 0.7), "flowlaw_V2": (0.5, 0.55, 0.65),
+    "flowlaw_pipe23": (0.45, 0.65, 0.7), "flowlaw_V2": (0.42, 0.55, 0.65),
     "sensorchar_L2": (0.85, 0.95), "sensorchar_L1": (0.95,), "sensorchar_L3": (0.9,), "sensorchar_L4": (0.9,),
     "sensorquad_L2": (0.03,), "deadzone_P1": (0.04, 0.07),
     "split_T1": (0.35, 0.65), "split_T2": (0.3, 0.7),

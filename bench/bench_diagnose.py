@@ -442,13 +442,11 @@ def robustness(seeds: list[int], cases: list[str] | None = None, quiet: bool = F
 def _transfer_job(job) -> dict:
     """One direction of one split: `civic diagnose` on the part before (or after) the split
     point, the improved model scored on the rest."""
-    import numpy as np
 
     from civic.diagnose import data
     from civic.diagnose.fit import diagnose
     from civic.diagnose.report import simulation_rmse
     from civic.plant.model import PlantModel
-    from civic.plant.simulate import Recording
 
     offset, fit_first, n_init = job
     data_path, model_path, _ = CASCADED
@@ -458,13 +456,8 @@ def _transfer_job(job) -> dict:
     cut = n // 2 + offset
     parts = {"first": slice(0, cut), "second": slice(cut, n)}
 
-    def part(sl, name):
-        sig = {k: np.asarray(v)[sl] for k, v in rec.signals.items()}
-        t = np.asarray(rec.t)[sl]
-        return Recording(t - t[0], sig, None, f"{rec.path} ({name} part)")
-
     a, b = ("first", "second") if fit_first else ("second", "first")
-    ra, rb = part(parts[a], a), part(parts[b], b)
+    ra, rb = (rec.part(parts[x], f"{rec.path} ({x} part)") for x in (a, b))
     t0 = time.perf_counter()
     d = diagnose(model, ra, n_init=n_init)
     el = time.perf_counter() - t0
@@ -593,18 +586,13 @@ def transfer_structures(names=None, n_init: int = 50) -> dict:
     from civic.diagnose.mechanisms import CATALOGUE, Coefficient
     from civic.diagnose.report import simulation_rmse
     from civic.plant.model import PlantModel
-    from civic.plant.simulate import Recording
 
     data_path, model_path, _ = CASCADED
     model = PlantModel.from_toml(model_path)
     rec = data.load(data_path, model)
     n = len(rec.t)
 
-    def part(sl, name):
-        t = np.asarray(rec.t)[sl]
-        return Recording(t - t[0], {k: np.asarray(v)[sl] for k, v in rec.signals.items()}, None, name)
-
-    recs = {"first": part(slice(0, n // 2), "first"), "second": part(slice(n // 2, n), "second"), "whole": rec}
+    recs = {"first": rec.part(slice(0, n // 2), "first"), "second": rec.part(slice(n // 2, n), "second"), "whole": rec}
 
     def joint_fit(r, select):
         # as diagnose() up to the candidates, then backward_eliminate's joint multi-start fit, refitted on all rows

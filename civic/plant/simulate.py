@@ -659,6 +659,14 @@ class Recording:
     fields: dict             # {wire field: int values} (empty for physical CSVs)
     path: str = ""
 
+    def part(self, sl: slice, path: str | None = None) -> "Recording":
+        """The samples in `sl`, timed from the first of them (a stretch of a record judged on its
+        own, e.g. one half of it)."""
+        t = np.asarray(self.t)[sl]
+        return Recording(t - t[0], {k: np.asarray(v)[sl] for k, v in self.signals.items()},
+                         {k: np.asarray(v)[sl] for k, v in (self.fields or {}).items()},
+                         self.path if path is None else path)
+
 
 TIME_COLUMNS = ("t_s", "t", "time", "time_s")   # CSV time column names, in order of preference
 

@@ -150,17 +150,11 @@ def _cut_record(offset: int):
     parts, each timed from its own start."""
     from civic.diagnose import data
     from civic.plant.model import PlantModel
-    from civic.plant.simulate import Recording
 
     model = PlantModel.from_toml(MODEL)
     rec = data.load(DATA, model)
     cut = len(rec.t) // 2 + offset
-
-    def part(sl):
-        t = np.asarray(rec.t)[sl]
-        return Recording(t - t[0], {k: np.asarray(v)[sl] for k, v in rec.signals.items()}, None, "part")
-
-    return model, part(slice(0, cut)), part(slice(cut, None))
+    return model, rec.part(slice(0, cut), "part"), rec.part(slice(cut, None), "part")
 
 
 def test_half_record_keeps_the_spill_no_fold_can_judge():

@@ -632,21 +632,18 @@ def transfer_structures(names=None, n_init: int = 50) -> dict:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) > 1 and sys.argv[1] in ("-h", "--help"):
+    mode, args = (sys.argv[1], sys.argv[2:]) if len(sys.argv) > 1 else (None, [])
+    if mode is None:
+        sys.exit(main())
+    if mode in ("-h", "--help"):
         print(__doc__)
-        sys.exit(0)
-    if len(sys.argv) > 1 and sys.argv[1] not in ("--transfer", "--structures", "--robustness") \
-            or len(sys.argv) == 2 and sys.argv[1] == "--robustness":
+    elif mode == "--transfer":
+        transfer(offsets=[int(o) for o in args[0].split(",")] if args else (0,))
+    elif mode == "--structures":
+        transfer_structures(args[0].split(";") if args else None)
+    elif mode == "--robustness" and args:
+        rest = [a for a in args[1:] if a not in ("--off-grid", "--via-pcap")]
+        sys.exit(robustness([int(s) for s in args[0].split(",")], rest[0].split(",") if rest else None,
+                            off_grid="--off-grid" in args, via_pcap="--via-pcap" in args))
+    else:
         sys.exit(f"bench_diagnose: unknown arguments {' '.join(sys.argv[1:])!r} (--help lists the modes)")
-    if len(sys.argv) > 1 and sys.argv[1] == "--transfer":
-        transfer(offsets=[int(o) for o in sys.argv[2].split(",")] if len(sys.argv) > 2 else (0,))
-        sys.exit(0)
-    if len(sys.argv) > 1 and sys.argv[1] == "--structures":
-        transfer_structures(sys.argv[2].split(";") if len(sys.argv) > 2 else None)
-        sys.exit(0)
-    if len(sys.argv) > 2 and sys.argv[1] == "--robustness":
-        off_grid = "--off-grid" in sys.argv
-        rest = [a for a in sys.argv[3:] if a not in ("--off-grid", "--via-pcap")]
-        sys.exit(robustness([int(s) for s in sys.argv[2].split(",")], rest[0].split(",") if rest else None,
-                            off_grid=off_grid, via_pcap="--via-pcap" in sys.argv))
-    sys.exit(main())

@@ -33,7 +33,7 @@ SWEEP_SEED5 = (0.9628, 1.0263, 1.0060, 1.0108)   # ... and seed-5's
 
 
 def draw_calibration(m, nominal, factors):
-    """One draw of the bench sweep's calibration spread (bench_diagnose.sweep_plant): factors on
+    """One draw of the bench sweep's calibration spread (bench/diagnose_sweep.py's sweep_plant): factors on
     P1's gain and the V1, pipe23 and V2 coefficients."""
     for path, f in zip(("pump.P1.gain", "link.V1.coeff", "link.pipe23.coeff", "link.V2.coeff"), factors):
         m.set(path, float(nominal.get(path)) * f)
@@ -82,7 +82,7 @@ def make_fault(nominal, name):
     elif name == "flowlaw_V2":
         m.find("link", "V2").exponent = 0.7
     elif name == "flowlaw_pipe23_subtle":
-        # the sweep's seed-5 plant (bench_diagnose.sweep_plant): with seed 5 no balance is flagged
+        # the sweep's seed-5 plant (bench/diagnose_sweep.py's sweep_plant): with seed 5 no balance is flagged
         draw_calibration(m, nominal, SWEEP_SEED5)
         m.find("link", "pipe23").exponent = 0.55
     elif name == "saturation_L1_training_only":
@@ -107,7 +107,7 @@ def make_fault(nominal, name):
         s = m.find("sensor", "L4")
         s.exponent, s.gain = 0.85, 5.0 ** 0.15
     elif name == "sensorchar_L3_seed1":
-        # the sweep's seed-1 plant (bench_diagnose.sweep_plant), L3 bent by 0.85 (calibrated at 5 L)
+        # the sweep's seed-1 plant (bench/diagnose_sweep.py's sweep_plant), L3 bent by 0.85 (calibrated at 5 L)
         draw_calibration(m, nominal, SWEEP_SEED1)
         s = m.find("sensor", "L3")
         s.exponent, s.gain = 0.85, 5.0 ** 0.15

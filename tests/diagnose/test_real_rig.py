@@ -234,7 +234,7 @@ def test_free_run_swaps_list_what_explains_the_held_out_data_as_well():
 
 
 def _bench_draw(nominal, p1, v1, pipe23, v2):
-    """The plant with one draw of the bench sweep's calibration spread (bench_diagnose.sweep_plant)."""
+    """The plant with one draw of the bench sweep's calibration spread (bench/diagnose_sweep.py's sweep_plant)."""
     plant = nominal.copy()
     for path, value in zip(("pump.P1.gain", "link.V1.coeff", "link.pipe23.coeff", "link.V2.coeff"),
                            (p1, v1, pipe23, v2)):

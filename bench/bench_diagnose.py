@@ -19,6 +19,7 @@ and which structure transfers (fixed candidate sets, fitted jointly without elim
 
 Robustness sweep alone, every case printed (--off-grid: at the magnitudes of OFF_GRID instead):
     python bench/bench_diagnose.py --robustness 1,2,3,4,5,6,7,8 [CASE,CASE...] [--off-grid] [--via-pcap]
+                                   [--operation TRUTH.json]
 10 min closed-loop cases, the plant's coefficients off by up to +-4 % (calibration), one
 concealed mechanism of the catalogue (one to three magnitudes, small but significant) or none;
 prints per case and the rates: clean cases without alarm, and cases where the first
@@ -32,7 +33,9 @@ by `civic diagnose`'s loader (wire rounding, the fault-code and frozen-sensor ch
 hidden cases are called, instead of handing the simulation's arrays to the diagnosis; a run the
 loader leaves samples of out (a simulated run has none) is a miss, its warning lines printed.
 CIVIC_BENCH_CONTROLLER=pi runs the sweep under the PI loops instead of the MPC (the
-supervisor's setpoints and tests are the same).
+supervisor's setpoints and tests are the same). --operation TRUTH.json: every run follows that
+case's setpoints and tests (its 'operation' list, as traces/diagnose/*/truth.json) instead of the
+supervisor's random ones, as the bundled cases ran.
 
 This file times the diagnosis and dispatches the modes; the sweep lives in
 bench/diagnose_sweep.py, the Cascaded Tanks harnesses in bench/diagnose_transfer.py.
@@ -143,8 +146,14 @@ if __name__ == "__main__":
     elif mode == "--structures":
         transfer_structures(args[0].split(";") if args else None)
     elif mode == "--robustness" and args:
+        operation = None
+        if "--operation" in args:
+            k = args.index("--operation")
+            if k + 1 >= len(args) or not Path(args[k + 1]).is_file():
+                sys.exit("bench_diagnose: --operation needs a truth.json file")
+            operation, args = args[k + 1], args[:k] + args[k + 2:]
         rest = [a for a in args[1:] if a not in ("--off-grid", "--via-pcap")]
         sys.exit(robustness([int(s) for s in args[0].split(",")], rest[0].split(",") if rest else None,
-                            off_grid="--off-grid" in args, via_pcap="--via-pcap" in args))
+                            off_grid="--off-grid" in args, via_pcap="--via-pcap" in args, operation=operation))
     else:
         sys.exit(f"bench_diagnose: unknown arguments {' '.join(sys.argv[1:])!r} (--help lists the modes)")

@@ -100,6 +100,7 @@ NEW_KINDS = ("flowlaw", "sensorchar", "sensorquad", "deadzone", "split")
 
 
 SPILL_RIM = 8.5    # L: the rim of the finite spill cases
+BUNDLED_OPERATION = ROOT / "traces" / "diagnose" / "example_leak_t3" / "truth.json"
 
 
 def split_rim(tank: str) -> float:
@@ -182,16 +183,17 @@ def sweep_case(job) -> dict:
     from civic.plant.model import PlantModel
     from civic.plant.simulate import Recording
 
-    case, mag, seed, via_pcap = job
+    case, mag, seed, via_pcap, operation = job
     nominal = PlantModel.from_toml(ROOT / "configs" / "plant.toml")
     plant = sweep_plant(nominal, case, mag, seed)
-    schedule = None
-    if case.startswith("spill") or case == "split_T2":
+    if operation is None and (case.startswith("spill") or case == "split_T2"):
         # the bundled case's setpoints (T2 up to 8.75 L): random ones rarely pass the 8.5 L rim
+        operation = BUNDLED_OPERATION
+    schedule = None
+    if operation is not None:
         from civic.plant.control import schedule_from_operation
 
-        truth = json.loads((ROOT / "traces" / "diagnose" / "example_leak_t3" / "truth.json").read_text())
-        schedule = schedule_from_operation(truth["operation"])
+        schedule = schedule_from_operation(json.loads(Path(operation).read_text())["operation"])
     res = run_closed_loop(plant, 600.0, controller=os.environ.get("CIVIC_BENCH_CONTROLLER", "mpc"), seed=seed,
                           noise=True, controller_model=nominal,
                           schedule=schedule)
@@ -288,12 +290,16 @@ def replay_change(plant, other, res) -> float:
 
 
 def robustness(seeds: list[int], cases: list[str] | None = None, quiet: bool = False,
-               off_grid: bool = False, via_pcap: bool = False) -> int:
+               off_grid: bool = False, via_pcap: bool = False, operation: str | None = None) -> int:
+    """Every case of the sweep (or of OFF_GRID; or only `cases`) on each seed, printed one a
+    line (only misses when `quiet`), then the rates. `operation`: a truth.json whose setpoints and
+    tests every run follows instead of the supervisor's random ones (as the bundled cases ran)."""
     from collections import defaultdict
     from multiprocessing import Pool
 
     grid = OFF_GRID if off_grid else {c: mags for c, (_, _, mags) in SWEEP.items()}
-    jobs = [(c, mag, s, via_pcap) for c, mags in grid.items() if not cases or c in cases for mag in mags for s in seeds]
+    jobs = [(c, mag, s, via_pcap, operation)
+            for c, mags in grid.items() if not cases or c in cases for mag in mags for s in seeds]
 
     rates = defaultdict(lambda: [0, 0, 0, 0])
     with Pool(int(os.environ.get("CIVIC_BENCH_PROCS", "2"))) as pool:

@@ -14,6 +14,7 @@ from pathlib import Path
 import civic  # noqa: F401  (before numpy: it pins the CPU code paths, civic/__init__.py)
 
 ROOT = Path(__file__).resolve().parents[1]
+# the record, its nominal model, and make bench's time target for diagnosing it (s)
 CASCADED = (ROOT / "traces" / "cascaded-tanks" / "estimation.csv", ROOT / "configs" / "cascaded-tanks.toml", 60.0)
 
 

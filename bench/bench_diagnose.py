@@ -88,8 +88,6 @@ def time_diagnose(path: Path, model_path: Path = ROOT / "configs" / "plant.toml"
     return time.perf_counter() - t0, rep
 
 
-
-
 def main() -> int:
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -152,6 +150,8 @@ if __name__ == "__main__":
             if k + 1 >= len(args) or not Path(args[k + 1]).is_file():
                 sys.exit("bench_diagnose: --operation needs a truth.json file")
             operation, args = args[k + 1], args[:k] + args[k + 2:]
+        if not args:
+            sys.exit("bench_diagnose: --robustness needs SEEDS (--help lists the modes)")
         rest = [a for a in args[1:] if a not in ("--off-grid", "--via-pcap")]
         sys.exit(robustness([int(s) for s in args[0].split(",")], rest[0].split(",") if rest else None,
                             off_grid="--off-grid" in args, via_pcap="--via-pcap" in args, operation=operation))

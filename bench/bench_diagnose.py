@@ -133,6 +133,14 @@ def main() -> int:
 BENCH_SEEDS = "1"   # seeds of the robustness sweep in `make bench` (CIVIC_BENCH_SEEDS overrides)
 
 
+def _integers(arg: str, what: str) -> list[int]:
+    """A comma-separated list of integers, or the one-line error naming the argument."""
+    try:
+        return [int(x) for x in arg.split(",")]
+    except ValueError:
+        sys.exit(f"bench_diagnose: {what} takes integers separated by commas, not {arg!r}")
+
+
 if __name__ == "__main__":
     mode, args = (sys.argv[1], sys.argv[2:]) if len(sys.argv) > 1 else (None, [])
     if mode is None:
@@ -140,7 +148,7 @@ if __name__ == "__main__":
     if mode in ("-h", "--help"):
         print(__doc__)
     elif mode == "--transfer":
-        transfer(offsets=[int(o) for o in args[0].split(",")] if args else (0,))
+        transfer(offsets=_integers(args[0], "--transfer OFFSETS") if args else (0,))
     elif mode == "--structures":
         transfer_structures(args[0].split(";") if args else None)
     elif mode == "--robustness" and args:
@@ -153,7 +161,7 @@ if __name__ == "__main__":
         if not args:
             sys.exit("bench_diagnose: --robustness needs SEEDS (--help lists the modes)")
         rest = [a for a in args[1:] if a not in ("--off-grid", "--via-pcap")]
-        sys.exit(robustness([int(s) for s in args[0].split(",")], rest[0].split(",") if rest else None,
+        sys.exit(robustness(_integers(args[0], "--robustness SEEDS"), rest[0].split(",") if rest else None,
                             off_grid="--off-grid" in args, via_pcap="--via-pcap" in args, operation=operation))
     else:
         sys.exit(f"bench_diagnose: unknown arguments {' '.join(sys.argv[1:])!r} (--help lists the modes)")

@@ -9,7 +9,6 @@ and prints the rates. Run it through bench/bench_diagnose.py --robustness.
 """
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 from pathlib import Path
@@ -191,9 +190,9 @@ def sweep_case(job) -> dict:
         operation = BUNDLED_OPERATION
     schedule = None
     if operation is not None:
-        from civic.plant.control import schedule_from_operation
+        from civic.plant.control import schedule_from_truth
 
-        schedule = schedule_from_operation(json.loads(Path(operation).read_text())["operation"])
+        schedule = schedule_from_truth(operation)[0]
     res = run_closed_loop(plant, 600.0, controller=os.environ.get("CIVIC_BENCH_CONTROLLER", "mpc"), seed=seed,
                           noise=True, controller_model=nominal,
                           schedule=schedule)

@@ -95,13 +95,13 @@ def run(args) -> int:
             raise CivicError("--v0 applies to the drain and fill tests only")
         if args.labels and args.onset is None:
             raise CivicError("--labels in closed loop needs --onset (the time the fault comes on)")
-        from civic.plant.control import run_closed_loop
+        from civic.plant.control import run_closed_loop, schedule_from_truth
 
         m = apply_faults(model, faults) if faults and args.onset is None else model
         onset = (args.onset, apply_faults(model, faults)) if args.onset is not None else None
         schedule, duration = None, args.duration
         if args.schedule:
-            schedule, sched_dur = _load_schedule(args.schedule)
+            schedule, sched_dur = schedule_from_truth(args.schedule)
             duration = duration if duration is not None else sched_dur
         duration = 600.0 if duration is None else duration
         with _progress(duration) as prog:
@@ -247,16 +247,6 @@ class _progress:
         if self.on:
             self.p.__exit__(*exc)
         return False
-
-
-def _load_schedule(path: str):
-    from civic.files import read_json
-    from civic.plant.control import schedule_from_operation
-
-    truth = read_json(path)
-    if not isinstance(truth, dict) or "operation" not in truth:
-        raise CivicError(f"{path}: no 'operation' list")
-    return schedule_from_operation(truth["operation"]), truth.get("duration_s")
 
 
 def _write_truth(path: str, res, args, faults: dict, duration: float) -> None:

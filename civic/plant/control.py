@@ -364,6 +364,16 @@ def schedule_from_operation(operation: list) -> list:
     return sorted(out, key=lambda e: e[0])
 
 
+def schedule_from_truth(path) -> tuple[list, float | None]:
+    """A case's truth.json -> (its operation as a schedule for run_closed_loop, its duration_s)."""
+    from civic.files import read_json
+
+    truth = read_json(path)
+    if not isinstance(truth, dict) or "operation" not in truth:
+        raise CivicError(f"{path}: no 'operation' list")
+    return schedule_from_operation(truth["operation"]), truth.get("duration_s")
+
+
 @dataclass
 class ClosedLoopResult:
     t: np.ndarray

@@ -218,18 +218,15 @@ def closed_loop_case(nominal):
         """extra_water: the circuit holds this much more than the model's stated 40 L."""
         key = (name, seed, extra_water)
         if key not in cache:
-            import json
-
             import numpy as np
 
-            from civic.plant.control import make_schedule, schedule_from_operation
+            from civic.plant.control import make_schedule, schedule_from_truth
 
             plant = make_fault(nominal, name)
             if name in BUNDLED_OPERATION or name.startswith("spill"):
                 # a bundled case's operation (spills: its setpoints take T2 past 8.5 L)
                 case = BUNDLED_OPERATION.get(name, "example_leak_t3")
-                truth = json.loads((ROOT / "traces" / "diagnose" / case / "truth.json").read_text())
-                schedule = schedule_from_operation(truth["operation"])
+                schedule = schedule_from_truth(ROOT / "traces" / "diagnose" / case / "truth.json")[0]
             else:
                 schedule = make_schedule(DURATION, np.random.default_rng(seed + 100)) if extra_water else None
             x0 = None

@@ -131,6 +131,34 @@ def test_backward_elimination_keeps_a_parameter_free_finding_on_a_tie():
     assert not _removable(law, 1.0 + 2.0 * MIN_ABLATION)
 
 
+def test_elimination_starts_from_the_tied_optimum_where_most_mechanisms_act():
+    """Joint-fit optima within BASIN_TIE of the best cost are a tie the data do not break: the
+    one where more mechanisms act goes to the elimination (the held-out judgement decides them,
+    not rounding); one clearly cheaper wins whatever acts in the others."""
+    from civic.diagnose.backward import BASIN_TIE, _widest_of_tied
+    from civic.diagnose.mechanisms import PumpHead
+    from civic.diagnose.problem import FitResult
+
+    m = PlantModel.from_toml(MODEL)
+
+    class Prob:
+        model = m
+
+    law = FlowLaw("out2", {"exponent": 0.4}, {"exponent": (0.15, 2.0)}, {"form": "exponent"})
+
+    def res(cost, head):
+        return FitResult([law, PumpHead("P1", {"head_coeff": head}, {"head_coeff": (0.0, 0.2)})],
+                         np.ones(3), {}, cost, 0.0, 0.0, 2, m)
+
+    sparse, wide = res(1000.0, 0.0002), res(1000.0 * (1 + 0.5 * BASIN_TIE), 0.05)
+    assert _widest_of_tied(Prob(), [sparse, wide]) is wide
+    assert _widest_of_tied(Prob(), [wide, sparse]) is wide
+    far = res(1000.0 * (1 + 2 * BASIN_TIE), 0.05)
+    assert _widest_of_tied(Prob(), [sparse, far]) is sparse
+    twin = res(1000.0 * (1 + 0.2 * BASIN_TIE), 0.0002)
+    assert _widest_of_tied(Prob(), [twin, sparse]) is sparse     # same acting set: the cheaper
+
+
 def test_a_sensor_map_already_bent_is_not_bent_again():
     """A model improved by a quadratic map (written by --write-model) diagnosed again: no power map
     is offered on top of that sensor's curvature (the model file cannot hold both)."""

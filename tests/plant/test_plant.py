@@ -688,6 +688,20 @@ def test_cli_closed_loop_follows_a_truth_schedule(tmp_path):
     assert np.all(data["v2"][run] == 1000) and np.all(data["p1"][run] == 0)
 
 
+
+def test_cli_closed_loop_schedule_that_is_no_truth_file_is_one_line(tmp_path, capsys):
+    """--schedule takes a case's truth.json: a missing file, one without an 'operation' list or
+    one whose list does not start with setpoints is a one-line error, exit 2 (as every CivicError)."""
+    (tmp_path / "none.json").write_text('{"mechanism": "none"}')
+    (tmp_path / "test_first.json").write_text('{"operation": [[0.0, "drain_test:prep", null]]}')
+    for name, said in (("missing.json", "cannot read"), ("none.json", "no 'operation' list"),
+                       ("test_first.json", "must start with a setpoints entry")):
+        rc = civic_main(["simulate", "closed-loop", "--model", str(PLANT), "--schedule", str(tmp_path / name),
+                         "--duration", "10", "-o", str(tmp_path / "c.csv")])
+        err = capsys.readouterr().err.strip()
+        assert rc == 2 and said in err and len(err.splitlines()) == 1, (name, err)
+        assert not (tmp_path / "c.csv").exists()
+
 CASCADED_SKETCH = """
 [model]
 name = "cascaded-sketch"

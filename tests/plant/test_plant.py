@@ -688,7 +688,6 @@ def test_cli_closed_loop_follows_a_truth_schedule(tmp_path):
     assert np.all(data["v2"][run] == 1000) and np.all(data["p1"][run] == 0)
 
 
-
 def test_cli_closed_loop_schedule_that_is_no_truth_file_is_one_line(tmp_path, capsys):
     """--schedule takes a case's truth.json: a missing file, one without an 'operation' list or
     one whose list does not start with setpoints is a one-line error, exit 2 (as every CivicError)."""
@@ -701,6 +700,7 @@ def test_cli_closed_loop_schedule_that_is_no_truth_file_is_one_line(tmp_path, ca
         err = capsys.readouterr().err.strip()
         assert rc == 2 and said in err and len(err.splitlines()) == 1, (name, err)
         assert not (tmp_path / "c.csv").exists()
+
 
 CASCADED_SKETCH = """
 [model]

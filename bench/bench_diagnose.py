@@ -74,16 +74,18 @@ def make_recording(path: Path, duration: float, seed: int = 5) -> None:
 
 
 def time_diagnose(path: Path, model_path: Path = ROOT / "configs" / "plant.toml", n_init: int = 1,
-                  progress=None) -> tuple[float, dict]:
+                  progress=None, jobs: int | None = None) -> tuple[float, dict]:
+    """`civic diagnose` as the command runs it (`jobs`: its default, every CPU this process may use)."""
     from civic.diagnose import data
     from civic.diagnose.fit import diagnose
+    from civic.diagnose.parallel import available_cpus
     from civic.diagnose.report import build_report
     from civic.plant.model import PlantModel
 
     t0 = time.perf_counter()
     model = PlantModel.from_toml(model_path)
     rec = data.load(path, model)
-    diag = diagnose(model, rec, progress=progress, n_init=n_init)
+    diag = diagnose(model, rec, progress=progress, n_init=n_init, jobs=jobs or available_cpus())
     rep = build_report(diag, rec, n_init=n_init, skip=0 if n_init == 1 else n_init)
     return time.perf_counter() - t0, rep
 

@@ -25,6 +25,9 @@ def register(sub) -> None:
                         "some tanks are unmeasured); RMSE is over the samples after N")
     p.add_argument("--window", type=float, default=5.0, metavar="S",
                    help="mass-balance window, seconds (default 5)")
+    p.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
+                   help="worker processes for the independent fits (default: the CPUs this process "
+                        "may use; the report does not depend on it)")
     p.add_argument("-q", "--quiet", action="store_true", help="no table on stdout")
     p.set_defaults(func=run)
 
@@ -43,6 +46,7 @@ def run(args) -> int:
     from civic.commands.simulate import default_model_path
     from civic.diagnose import data
     from civic.diagnose.fit import diagnose
+    from civic.diagnose.parallel import available_cpus
     from civic.diagnose.report import build_report, plot, print_summary, write_json
     from civic.plant.model import PlantModel
     from civic.plant.simulate import outside_range, unreadable_lines
@@ -52,6 +56,8 @@ def run(args) -> int:
     _check_out(args.write_model, (".toml",))
     if not args.window > 0:
         raise CivicError("--window must be > 0")
+    if args.jobs is not None and args.jobs < 1:
+        raise CivicError("--jobs must be >= 1")
     model = PlantModel.from_toml(args.model or default_model_path())
     rec = data.load(args.recording, model, args.plant)
     for line in outside_range(model, rec.signals):
@@ -65,7 +71,8 @@ def run(args) -> int:
     if not 1 <= n_init < len(rec.t) // 2:
         raise CivicError(f"--init-samples must lie in 1..{len(rec.t) // 2 - 1}")
     with _Progress() as prog:
-        diag = diagnose(model, rec, progress=prog, window_s=args.window, n_init=n_init)
+        diag = diagnose(model, rec, progress=prog, window_s=args.window, n_init=n_init,
+                        jobs=args.jobs or available_cpus())
     rep = build_report(diag, rec, n_init=n_init, skip=0 if full else n_init)
     if not args.quiet:
         print_summary(rep)

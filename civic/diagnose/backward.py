@@ -5,12 +5,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from functools import partial
+
 import numpy as np
 
 from civic.plant.model import PlantModel
 
 from .forward import MAX_ALTERNATIVES
 from .mechanisms import Mechanism
+from .parallel import run_all
 from .problem import Diagnosis, FitResult, Problem, extra_starts, tried_record
 
 MIN_ABLATION = 0.01     # a finding stays if removing it raises the held-out RMSE by 1 %
@@ -116,23 +119,25 @@ def backward_eliminate(prob: Problem, diag: Diagnosis, candidates: list[Mechanis
     mechs = sorted(general_candidates(candidates), key=free_rim_last)
     every = np.ones_like(prob.engine.train)
     # each candidate alone first: the joint fit also starts from the best single one's values
-    singles = []
-    for i, m in enumerate(mechs):
-        if progress:
-            progress(i, len(mechs) + 1, f"alone: {m.label}")
-        singles.append(prob.fit([m], rows=every, start_cal=base.cal, start_x0=base.x0_extra, starts=extra_starts(m)))
+    if progress:
+        progress(0, len(mechs) + 1, f"each of {len(mechs)} candidates alone")
+    singles = run_all([partial(prob.fit, [m], rows=every, start_cal=base.cal, start_x0=base.x0_extra,
+                               starts=extra_starts(m)) for m in mechs], prob.jobs,
+                      progress and (lambda k: progress(k, len(mechs) + 1, f"each of {len(mechs)} candidates alone")))
     if progress:
         progress(len(mechs), len(mechs) + 1, f"joint fit of {len(mechs)} candidates (multi-start)")
     # from the nominal model's calibration and from the datasheet's: the calibration of a model
     # that lacks the mechanisms can sit in another basin (448 samples of Cascaded Tanks: pump
     # gain 0.51x and out1 1.8x made up for the missing spills; the joint fit from there ended
     # at 10x the cost of the one from the datasheet's values)
-    fits = [prob.fit(mechs, rows=every, start_cal=cal, start_x0=x0, starts=extra_starts(mechs[-1]) if mechs else None)
-            for cal, x0 in ((base.cal, base.x0_extra), (np.ones_like(base.cal), None))]
+    joint = [partial(prob.fit, mechs, rows=every, start_cal=cal, start_x0=x0,
+                     starts=extra_starts(mechs[-1]) if mechs else None)
+             for cal, x0 in ((base.cal, base.x0_extra), (np.ones_like(base.cal), None))]
     if singles:
         k = int(np.argmin([r.train_sse for r in singles]))
         warm = [singles[k].mechanisms[0] if j == k else m for j, m in enumerate(mechs)]
-        fits.append(prob.fit(warm, rows=every, start_cal=singles[k].cal, start_x0=singles[k].x0_extra))
+        joint.append(partial(prob.fit, warm, rows=every, start_cal=singles[k].cal, start_x0=singles[k].x0_extra))
+    fits = run_all(joint, prob.jobs)
     # the objective minimised: all rows (`train_sse` alone covers the first 65 %), optima within
     # BASIN_TIE of each other a tie. Picking the start by the blocked CV's held-out RMSE instead
     # picked the same fit on Cascaded Tanks (whole record and both halves)
@@ -147,11 +152,11 @@ def backward_eliminate(prob: Problem, diag: Diagnosis, candidates: list[Mechanis
     current = prob.evaluate(mechs, **start)
     first_pass = True
     while mechs:
-        without = []
-        for i, m in enumerate(mechs):
-            if progress:
-                progress(i, len(mechs), f"cross-validation: without {m.label}")
-            without.append(prob.evaluate(mechs[:i] + mechs[i + 1:], **start))
+        if progress:
+            progress(0, len(mechs), f"cross-validation: each of {len(mechs)} findings left out")
+        without = run_all([partial(prob.evaluate, mechs[:i] + mechs[i + 1:], **start) for i in range(len(mechs))],
+                          prob.jobs, progress and (lambda k, n=len(mechs): progress(
+                              k, n, f"cross-validation: each of {n} findings left out")))
         if first_pass:
             for m, w in zip(mechs, without):
                 diag.tried.append(tried_record(m.label, current, w, m))
@@ -213,15 +218,20 @@ def _swaps(prob: Problem, finding: Mechanism, others: list[Mechanism], current: 
     of the chosen set's and below the set without the finding, and not negligible. The record
     cannot tell them apart (best first); like the equation error's, they are never findings and
     a variant of the finding's own family on its component is not one."""
-    out = []
-    for j, c in enumerate(pool):
-        if (c.name, c.component) == (finding.name, finding.component):
-            continue
-        if progress:
-            progress(j, len(pool), f"swap: {c.label} for {finding.label}")
+    pool = [c for c in pool if (c.name, c.component) != (finding.name, finding.component)]
+
+    def swap(c):
         try:
-            r = prob.evaluate(others + [c], **start)
+            return prob.evaluate(others + [c], **start)
         except RuntimeError:
+            return None
+    if progress:
+        progress(0, len(pool), f"swap: each of {len(pool)} for {finding.label}")
+    fits = run_all([partial(swap, c) for c in pool], prob.jobs,
+                   progress and (lambda k: progress(k, len(pool), f"swap: each of {len(pool)} for {finding.label}")))
+    out = []
+    for c, r in zip(pool, fits):
+        if r is None:
             continue
         alt = r.mechanisms[-1]
         if (r.val_rmse <= current.val_rmse * (1 + MIN_ABLATION) and r.val_rmse < without.val_rmse

@@ -54,12 +54,13 @@ LEVEL_ERROR = 1.0
 
 
 def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float = 5.0,
-             n_init: int = 1) -> Diagnosis:
-    """Calibrate, localise, fit candidates, select on held-out data. See the module doc."""
+             n_init: int = 1, jobs: int = 1) -> Diagnosis:
+    """Calibrate, localise, fit candidates, select on held-out data. See the module doc. `jobs`:
+    worker processes for independent fits (the result does not depend on it)."""
     engine = make_engine(model, rec, window_s=window_s, n_init=n_init)
     free = isinstance(engine, SimulationError) and bool(engine.unmeasured(model))
     cal = Calibration.of(model, bounds=FREE_RUN_CAL if free else None)
-    prob = Problem(model, rec, engine, cal, np.ones(len(engine.columns)))
+    prob = Problem(model, rec, engine, cal, np.ones(len(engine.columns)), jobs=jobs)
     # noise weights: equation error -> robust spread of the raw nominal residual; simulation -> sensor noise
     if isinstance(engine, EquationError):
         first = prob.fit([])
@@ -120,7 +121,7 @@ def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float =
                                 "offset" in c.params else [c])]
         chosen, current = forward_select(prob, diag, candidates, base, progress)
         if not chosen and not engine.short and not diag.negligible:   # the balances' rest is negligible
-            found = replay_select(model, rec, diag, candidates, progress)
+            found = replay_select(model, rec, diag, candidates, progress, jobs=jobs)
             if found:
                 prob, chosen, current = found
     if progress:

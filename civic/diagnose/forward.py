@@ -4,11 +4,13 @@ separate from it is reported as an alternative, never as a finding."""
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 
 from .compare import EquationError
 from .locate import still_flagged
 from .mechanisms import Mechanism
 from .mechanisms.base import tanks_of
+from .parallel import run_all
 from .problem import MIN_GAIN, Diagnosis, FitResult, Problem, extra_starts, fold_gains, significant, tried_record
 
 # the first finding: the held-out SSE must fall by this much (further ones: MIN_GAIN, since they
@@ -50,27 +52,28 @@ def forward_select(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], 
     done = 0
     for round_ in range(MAX_FINDINGS):
         results = []          # (candidate, its fit, (fit judged, reference judged, how))
-        swapped = None        # the current model evaluated with the blocks swapped (lazily)
-        for cand in candidates:
-            if any(c.component == cand.component for c in chosen):
-                continue     # one finding per component: a second one on it (an offset on top of a
-                             # sensor map, a weir on top of a spill) only trades with the first
+        # one finding per component: a second one on it (an offset on top of a sensor map, a weir
+        # on top of a spill) only trades with the first
+        cands = [c for c in candidates if all(c.component != m.component for m in chosen)]
+        fits = run_all([partial(_fit_candidate, prob, chosen, current, c) for c in cands], prob.jobs,
+                       progress and (lambda k, d=done: progress(d + k, planned, cands[k - 1].label)))
+        done += len(cands)
+        # a candidate the held-out blocks never see act: judged with the blocks swapped, against the
+        # current model refitted the same way (from its calibration: the candidate's optimum is near it)
+        unseen = [i for i, f in enumerate(fits) if f is not None and f[1]]
+        swapped, flip = None, prob.both_orders()[1:]
+        if unseen:
             try:
-                res = prob.evaluate(chosen + [cand], start_cal=current.cal, start_x0=current.x0_extra,
-                                    starts=extra_starts(cand))
-                judged = (res, current, "")
-                if prob.unseen_held_out(res):
-                    flip = prob.both_orders()[1:]
-                    swapped = swapped or prob.evaluate(chosen, start_cal=current.cal, folds=flip)
-                    # from the swapped reference's calibration: the candidate's optimum is near it
-                    judged = (prob.evaluate(chosen + [cand], start_cal=swapped.cal, starts=extra_starts(cand),
-                                            folds=flip), swapped, SWAPPED)
+                swapped = prob.evaluate(chosen, start_cal=current.cal, folds=flip)
             except RuntimeError:
+                pass
+        flipped = run_all([partial(_swapped_fit, prob, chosen, cands[i], swapped, flip) for i in unseen], prob.jobs)
+        judged_flipped = dict(zip(unseen, flipped))
+        for i, (cand, f) in enumerate(zip(cands, fits)):
+            if f is None or (f[1] and judged_flipped[i] is None):
                 continue
-            finally:
-                done += 1
-                if progress:
-                    progress(done, planned, cand.label)
+            res = f[0]
+            judged = (judged_flipped[i], swapped, SWAPPED) if f[1] else (res, current, "")
             results.append((cand, res, judged))
             if round_ == 0:
                 r, ref, how = judged
@@ -133,6 +136,28 @@ def forward_select(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], 
                            or (c.standing and tanks_of(model, c.component) & flagged))]
         planned += len(candidates)
     return chosen, current
+
+
+def _fit_candidate(prob: Problem, chosen: list, current: FitResult, cand: Mechanism):
+    """`cand` beside `chosen`, fitted from `current` and judged on the held-out blocks, and whether
+    those blocks never see it act (`Problem.unseen_held_out`); None where no start converged."""
+    try:
+        res = prob.evaluate(chosen + [cand], start_cal=current.cal, start_x0=current.x0_extra,
+                            starts=extra_starts(cand))
+    except RuntimeError:
+        return None
+    return res, prob.unseen_held_out(res)
+
+
+def _swapped_fit(prob: Problem, chosen: list, cand: Mechanism, swapped: FitResult | None, flip: list):
+    """`cand` beside `chosen` judged with the blocks swapped, from the swapped reference's calibration;
+    None where that reference or the fit did not converge."""
+    if swapped is None:
+        return None
+    try:
+        return prob.evaluate(chosen + [cand], start_cal=swapped.cal, starts=extra_starts(cand), folds=flip)
+    except RuntimeError:
+        return None
 
 
 def outranked(diag: Diagnosis, best: tuple, small: list) -> bool:

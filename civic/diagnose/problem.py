@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -16,6 +17,7 @@ from .compare import EquationError, SimulationError, fully_measured
 from .locate import Localisation
 from .mechanisms import Mechanism, coefficient_paths
 from .mechanisms.coefficient import CAL_SPREAD
+from .parallel import run_all
 
 # a candidate counts if it lowers the held-out BIC by MIN_DBIC and the held-out SSE by MIN_GAIN
 # (`significant`; the forward selection's first finding needs less, forward.MIN_GAIN_FIRST)
@@ -144,8 +146,10 @@ class Problem:
     """Objective plumbing: model edits -> weighted residual rows of an engine. `sigma`: the
     weights, per column or per row and column."""
 
-    def __init__(self, model: PlantModel, rec: Recording, engine, cal: Calibration, sigma: np.ndarray):
+    def __init__(self, model: PlantModel, rec: Recording, engine, cal: Calibration, sigma: np.ndarray,
+                 jobs: int = 1):
         self.model = model
+        self.jobs = jobs            # worker processes for independent fits (`parallel.run_all`)
         self.rec = rec
         self.engine = engine
         self.cal = cal
@@ -287,9 +291,12 @@ class Problem:
         """Fit on each fold's training rows; held-out SSE/BIC over all folds' held-out rows
         (`folds`: training masks, default `self.folds()`)."""
         first, held, held_sigma, params = None, [], [], []
-        for mask in (self.folds() if folds is None else folds):
+        masks = self.folds() if folds is None else folds
+
+        def fold(mask):
             res = self.fit(mechs, rows=mask, start_cal=start_cal, start_x0=start_x0, starts=starts, budget=budget)
-            R = self.residuals(res.model, res.x0_extra)
+            return res, self.residuals(res.model, res.x0_extra)
+        for mask, (res, R) in zip(masks, run_all([partial(fold, mask) for mask in masks], self.jobs)):
             held.append(R[~mask])
             held_sigma.append(np.broadcast_to(self.sigma, R.shape)[~mask])
             params.append([m.values() for m in res.mechanisms])

@@ -2,6 +2,8 @@
 from the recorded inputs judges the candidates on a blocked 2-fold CV in time."""
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
 from civic.plant.model import PlantModel
@@ -11,6 +13,7 @@ from civic.plant.simulate import Recording
 from .compare import SimulationError
 from .forward import indistinguishable, outranked
 from .mechanisms import Mechanism
+from .parallel import run_all
 from .problem import Calibration, Diagnosis, Problem, extra_starts, fold_gains, significant, tried_record
 
 # the replay stage: a fully measured plant whose balances leave no finding may still replay away
@@ -25,7 +28,8 @@ REPLAY_AVERAGE = 20     # samples averaged for the measured initial state: from 
                         # the reservoir's replay stood 2 sigmas off for the whole run
 
 
-def replay_select(model: PlantModel, rec: Recording, diag: Diagnosis, candidates: list[Mechanism], progress=None):
+def replay_select(model: PlantModel, rec: Recording, diag: Diagnosis, candidates: list[Mechanism], progress=None,
+                  jobs: int = 1):
     """The replay stage (after a forward selection that found nothing on the balances): the
     calibrated model replayed open loop from the recorded inputs; where some level departs from
     its recording by REPLAY_BAR noise sigmas (RMS), the candidates acting over the whole record
@@ -43,7 +47,7 @@ def replay_select(model: PlantModel, rec: Recording, diag: Diagnosis, candidates
         return None
     engine = SimulationError(model, rec, average=REPLAY_AVERAGE)
     sigma = np.array([max(noise_sigma(engine.Y[:, j]), 1e-6) for j in range(engine.Y.shape[1])])
-    prob = Problem(model, rec, engine, Calibration.of(model), sigma)
+    prob = Problem(model, rec, engine, Calibration.of(model), sigma, jobs=jobs)
     base = prob.evaluate([])
     ratio = np.sqrt(np.mean(prob.residuals(base.model, base.x0_extra) ** 2, axis=0))
     diag.replay = {"rms_over_noise": {s: round(float(r), 3) for s, r in zip(engine.columns, ratio)},
@@ -55,15 +59,22 @@ def replay_select(model: PlantModel, rec: Recording, diag: Diagnosis, candidates
     # that falls short of REPLAY_FOLD_GAIN there cannot meet the rule, which asks it of each half
     first = prob.folds()[:1]
     ref_first = prob.evaluate([], start_cal=base.cal, folds=first)
-    results, small = [], []
-    for i, cand in enumerate(pool):
-        if progress:
-            progress(i, len(pool), f"replay: {cand.label}")
+
+    def judge(cand):
         try:
             res = prob.evaluate([cand], start_cal=base.cal, starts=extra_starts(cand), folds=first)
             if fold_gains(res, ref_first)[0] >= REPLAY_FOLD_GAIN:
                 res = prob.evaluate([cand], start_cal=base.cal, starts=extra_starts(cand))
         except RuntimeError:
+            return None
+        return res
+    if progress:
+        progress(0, len(pool), "replay: candidates")
+    fits = run_all([partial(judge, c) for c in pool], prob.jobs,
+                   progress and (lambda k: progress(k, len(pool), f"replay: {pool[k - 1].label}")))
+    results, small = [], []
+    for cand, res in zip(pool, fits):
+        if res is None:
             continue
         fitted = res.mechanisms[-1]
         ref = base if len(res.fold_sse) == len(base.fold_sse) else ref_first

@@ -4,7 +4,9 @@ closed-loop recordings of the four-tank plant, 10 min (target < 10 s) and 60 min
 The four-tank recordings are made with the closed-loop plant simulator (MPC designed on
 the nominal model, plant with a concealed T3 leak and a few % calibration spread),
 written to a pcap; every case is diagnosed through the CLI code path (load, diagnose,
-report, no plot), with a rich progress bar on a terminal.
+report, no plot), with a rich progress bar on a terminal: with the command's default worker
+processes (`--jobs`: every CPU this process may use), against the same diagnosis in one process
+measured in the same run (the ratio), and the two reports must be the same.
 
 Run: python bench/bench_diagnose.py  (or `python -m bench`). Prints one line per case, then
 the robustness tables below on seed 1 (CIVIC_BENCH_SEEDS=1,2,... for more; ~11 min a seed on
@@ -90,40 +92,60 @@ def time_diagnose(path: Path, model_path: Path = ROOT / "configs" / "plant.toml"
     return time.perf_counter() - t0, rep
 
 
+def _as_written(rep: dict) -> str:
+    """A report as `civic diagnose --json` writes it."""
+    from civic.diagnose.report import write_json
+
+    with tempfile.TemporaryDirectory() as tmp:
+        write_json(rep, Path(tmp) / "report.json")
+        return (Path(tmp) / "report.json").read_text()
+
+
 def main() -> int:
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from civic.diagnose.parallel import available_cpus
+
     ok = True
+    jobs = available_cpus()
     console = Console(stderr=True)
+    print(f"diagnose: the command's default, {jobs} worker process(es), against one process (the baseline, "
+          "same run); the reports must be the same", flush=True)
     with tempfile.TemporaryDirectory() as tmp, \
             Progress(TextColumn("{task.fields[case]}"), BarColumn(), TextColumn("{task.description}"),
                      TimeElapsedColumn(), console=console, transient=True) as bar:
-        def progress_of(task):
-            return lambda k, n, what="": bar.update(task, completed=k / max(n, 1), description=what)
+        def timed(case, path, **kw):
+            """(seconds with `jobs` workers, seconds in one process, report, whether the two reports agree)"""
+            out = []
+            for j in (1, jobs):
+                task = bar.add_task("", total=1.0, case=f"{case}, {j} process(es)")
+                out.append(time_diagnose(path, jobs=j, progress=lambda k, n, what="", t=task: bar.update(
+                    t, completed=k / max(n, 1), description=what), **kw))
+                bar.remove_task(task)
+            (one, rep_one), (el, rep) = out
+            return el, one, rep, _as_written(rep_one) == _as_written(rep)
+
+        def line(el, one, same, target):
+            nonlocal ok
+            ok &= el < target and same
+            return (f"{el:6.2f} s (target < {target:g} s, {'ok' if el < target else 'SLOW'}; one process "
+                    f"{one:.2f} s, {one / el:.2f}x; {'same report' if same else 'REPORTS DIFFER'})")
 
         data_path, model_path, target = CASCADED
-        task = bar.add_task("", total=1.0, case="Cascaded Tanks")
-        el, rep = time_diagnose(data_path, model_path, n_init=50, progress=progress_of(task))
-        bar.remove_task(task)
+        el, one, rep, same = timed("Cascaded Tanks", data_path, model_path=model_path, n_init=50)
         after = rep["fit"]["after"]["rmse"]["y_V"]
         held = rep["fit"].get("ablation", {}).get("heldout_rmse", float("nan"))
-        ok &= el < target
-        print(f"diagnose Cascaded Tanks (1024 samples): {el:6.2f} s (target < {target:g} s, "
-              f"{'ok' if el < target else 'SLOW'}); {len(rep['findings'])} findings, "
-              f"simulation RMSE {rep['fit']['before']['rmse']['y_V']:.3f} -> {after:.3f} V "
+        print(f"diagnose Cascaded Tanks (1024 samples): {line(el, one, same, target)}; {len(rep['findings'])} "
+              f"findings, simulation RMSE {rep['fit']['before']['rmse']['y_V']:.3f} -> {after:.3f} V "
               f"(held-out {held:.3f} V)", flush=True)
         for duration, target in TARGETS.items():
-            task = bar.add_task("simulating the plant", total=1.0, case=f"four-tank {duration / 60:g} min")
             path = Path(tmp) / f"closed_loop_{int(duration)}s.pcap"
             make_recording(path, duration)
-            el, rep = time_diagnose(path, progress=progress_of(task))
-            bar.remove_task(task)
+            el, one, rep, same = timed(f"four-tank {duration / 60:g} min", path)
             found = ", ".join(f"{f['mechanism']} {f['component']}" for f in rep["findings"]) or "none"
-            status = "ok" if el < target else "SLOW"
-            ok &= el < target
             print(f"diagnose {duration / 60:4.0f} min @ 10 Hz ({int(duration * 10)} messages): "
-                  f"{el:6.2f} s (target < {target:g} s, {status}); findings: {found}", flush=True)
+                  f"{line(el, one, same, target)}; findings: {found}", flush=True)
     # the robustness tables (catalogue families, real-rig physics) on BENCH_SEEDS; the full
     # sweep is --robustness 1,...,8
     seeds = [int(s) for s in os.environ.get("CIVIC_BENCH_SEEDS", BENCH_SEEDS).split(",")]

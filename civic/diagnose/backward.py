@@ -149,15 +149,17 @@ def backward_eliminate(prob: Problem, diag: Diagnosis, candidates: list[Mechanis
     mechs, judges = [m for m, _ in kept], [j for _, j in kept]
     # per-fold refits start at the joint optimum: a short budget suffices
     start = dict(start_cal=full.cal, start_x0=full.x0_extra, budget=CV_BUDGET)
-    current = prob.evaluate(mechs, **start)
     first_pass = True
     while mechs:
+        what = f"cross-validation: each of {len(mechs)} findings left out"
         if progress:
-            progress(0, len(mechs), f"cross-validation: each of {len(mechs)} findings left out")
-        without = run_all([partial(prob.evaluate, mechs[:i] + mechs[i + 1:], **start) for i in range(len(mechs))],
-                          prob.jobs, progress and (lambda k, n=len(mechs): progress(
-                              k, n, f"cross-validation: each of {n} findings left out")))
+            progress(0, 1, what)
+        # the first pass also judges the whole set: every fold of every fit one task
+        without = prob.evaluate_many(([mechs] if first_pass else []) + [mechs[:i] + mechs[i + 1:]
+                                                                         for i in range(len(mechs))],
+                                     progress=progress and (lambda k, n, what=what: progress(k, n, what)), **start)
         if first_pass:
+            current, *without = without
             for m, w in zip(mechs, without):
                 diag.tried.append(tried_record(m.label, current, w, m))
             first_pass = False

@@ -224,9 +224,10 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
     if len(pool) + len(contenders) < 2 or how or prob.engine.short or not isinstance(prob.engine, EquationError):
         return best, [], {}
     both = prob.both_orders()
-    ref = prob.evaluate(chosen, start_cal=current.cal, folds=both)
-    fits = {x[0].label: prob.evaluate(chosen + [x[0]], start_cal=current.cal, starts=extra_starts(x[0]), folds=both)
-            for x in pool + contenders}
+    ref, *each = prob.evaluate_many([chosen] + [chosen + [x[0]] for x in pool + contenders],
+                                    [None] + [extra_starts(x[0]) for x in pool + contenders], both,
+                                    start_cal=current.cal)
+    fits = {x[0].label: f for x, f in zip(pool + contenders, each)}
     dbic = {label: f.val_bic - ref.val_bic for label, f in fits.items()}
     decided = sorted(({"candidate": label, "dbic": d} for label, d in dbic.items()), key=lambda v: v["dbic"])
     # the pool was significant on one order already: it needs only to gain pooled; a contender

@@ -290,20 +290,37 @@ class Problem:
                  budget: int = 40, folds: list | None = None) -> FitResult:
         """Fit on each fold's training rows; held-out SSE/BIC over all folds' held-out rows
         (`folds`: training masks, default `self.folds()`)."""
-        first, held, held_sigma, params = None, [], [], []
-        masks = self.folds() if folds is None else folds
+        return self.evaluate_many([mechs], [starts], folds, start_cal=start_cal, start_x0=start_x0,
+                                  budget=budget)[0]
 
-        def fold(mask):
-            res = self.fit(mechs, rows=mask, start_cal=start_cal, start_x0=start_x0, starts=starts, budget=budget)
+    def evaluate_many(self, mech_lists: list[list[Mechanism]], starts: list | None = None,
+                      folds: list | None = None, progress=None, **start) -> list[FitResult]:
+        """`evaluate` of each list of mechanisms (`starts`: each list's extra starts; `start`: the
+        start and budget they share), every fold of every list a task of its own (`run_all`;
+        `progress(done, total)` as the folds' fits come in)."""
+        masks = self.folds() if folds is None else folds
+        starts = starts or [None] * len(mech_lists)
+
+        def fold(mechs, extra, mask):
+            res = self.fit(mechs, rows=mask, starts=extra, **start)
             return res, self.residuals(res.model, res.x0_extra)
-        for mask, (res, R) in zip(masks, run_all([partial(fold, mask) for mask in masks], self.jobs)):
+        tasks = [partial(fold, mechs, extra, mask) for mechs, extra in zip(mech_lists, starts) for mask in masks]
+        fits = run_all(tasks, self.jobs, progress and (lambda done: progress(done, len(tasks))))
+        k = len(masks)
+        return [self._pooled(masks, fits[i * k:(i + 1) * k], folds is None) for i in range(len(mech_lists))]
+
+    def _pooled(self, masks: list[np.ndarray], fits: list, default_folds: bool) -> FitResult:
+        """The first fold's fit, judged on every fold's held-out rows (`fits`: per fold, the fit
+        and its residuals)."""
+        first, held, held_sigma, params = None, [], [], []
+        for mask, (res, R) in zip(masks, fits):
             held.append(R[~mask])
             held_sigma.append(np.broadcast_to(self.sigma, R.shape)[~mask])
             params.append([m.values() for m in res.mechanisms])
             if first is None:
                 first = res
         first.fold_params = params
-        if folds is None and len(held) == 1:
+        if default_folds and len(held) == 1:
             first.held_out = held[0]          # the rows of self.val (unseen_held_out compares there)
         Rv = np.concatenate(held)
         first.fold_sse = [float(np.sum(h ** 2)) for h in held]

@@ -80,14 +80,13 @@ def time_diagnose(path: Path, model_path: Path = ROOT / "configs" / "plant.toml"
     """`civic diagnose` as the command runs it (`jobs`: its default, every CPU this process may use)."""
     from civic.diagnose import data
     from civic.diagnose.fit import diagnose
-    from civic.diagnose.parallel import available_cpus
     from civic.diagnose.report import build_report
     from civic.plant.model import PlantModel
 
     t0 = time.perf_counter()
     model = PlantModel.from_toml(model_path)
     rec = data.load(path, model)
-    diag = diagnose(model, rec, progress=progress, n_init=n_init, jobs=jobs or available_cpus())
+    diag = diagnose(model, rec, progress=progress, n_init=n_init, jobs=jobs)
     rep = build_report(diag, rec, n_init=n_init, skip=0 if n_init == 1 else n_init)
     return time.perf_counter() - t0, rep
 

@@ -46,7 +46,6 @@ def run(args) -> int:
     from civic.commands.simulate import default_model_path
     from civic.diagnose import data
     from civic.diagnose.fit import diagnose
-    from civic.diagnose.parallel import available_cpus
     from civic.diagnose.report import build_report, plot, print_summary, write_json
     from civic.plant.model import PlantModel
     from civic.plant.simulate import outside_range, unreadable_lines
@@ -71,8 +70,7 @@ def run(args) -> int:
     if not 1 <= n_init < len(rec.t) // 2:
         raise CivicError(f"--init-samples must lie in 1..{len(rec.t) // 2 - 1}")
     with _Progress() as prog:
-        diag = diagnose(model, rec, progress=prog, window_s=args.window, n_init=n_init,
-                        jobs=args.jobs or available_cpus())
+        diag = diagnose(model, rec, progress=prog, window_s=args.window, n_init=n_init, jobs=args.jobs)
     rep = build_report(diag, rec, n_init=n_init, skip=0 if full else n_init)
     if not args.quiet:
         print_summary(rep)

@@ -38,6 +38,7 @@ from .dating import redate
 from .forward import forward_select
 from .locate import localise, suspect_everywhere
 from .mechanisms import CATALOGUE, Coefficient, Mechanism
+from .parallel import available_cpus
 from .problem import Calibration, Diagnosis, FitResult, Problem, make_engine
 from .replay import replay_select
 
@@ -54,9 +55,11 @@ LEVEL_ERROR = 1.0
 
 
 def diagnose(model: PlantModel, rec: Recording, progress=None, window_s: float = 5.0,
-             n_init: int = 1, jobs: int = 1) -> Diagnosis:
+             n_init: int = 1, jobs: int | None = None) -> Diagnosis:
     """Calibrate, localise, fit candidates, select on held-out data. See the module doc. `jobs`:
-    worker processes for independent fits (the result does not depend on it)."""
+    worker processes for independent fits (default: every CPU this process may use; in a pool's
+    worker, one); the result does not depend on it."""
+    jobs = available_cpus() if jobs is None else jobs
     engine = make_engine(model, rec, window_s=window_s, n_init=n_init)
     free = isinstance(engine, SimulationError) and bool(engine.unmeasured(model))
     cal = Calibration.of(model, bounds=FREE_RUN_CAL if free else None)

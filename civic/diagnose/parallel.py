@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 from typing import Callable, TypeVar
 
 T = TypeVar("T")
@@ -22,9 +23,10 @@ def available_cpus() -> int:
 
 
 def run_all(tasks: list[Callable[[], T]], jobs: int = 1, progress: Callable[[int], None] | None = None) -> list[T]:
-    """`[task() for task in tasks]`, in `jobs` forked processes where there is more than one task and
-    one job. `progress(k)` is called in this process as the k-th result (in order) arrives. An
-    exception in a task is raised here, as in the serial loop."""
+    """`[task() for task in tasks]`, run by up to `jobs` forked worker processes (in this process
+    with one job or one task, in a pool's worker, or where the system cannot fork). `progress(k)`
+    is called here as the k-th result (in order) arrives. An exception in a task is raised here,
+    as in the serial loop."""
     global _tasks
     # a pool's worker (daemonic: it may not fork) runs its own task lists itself
     if (jobs <= 1 or len(tasks) <= 1 or multiprocessing.current_process().daemon
@@ -36,8 +38,15 @@ def run_all(tasks: list[Callable[[], T]], jobs: int = 1, progress: Callable[[int
                 progress(k + 1)
         return out
     _tasks = tasks
+    # Ctrl-C held back while the workers fork: a worker ignores it from its first instruction on
+    # (`_start_worker`), and this process gets it once they are started
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
-        with multiprocessing.get_context("fork").Pool(min(jobs, len(tasks)), initializer=_start_worker) as pool:
+        pool = multiprocessing.get_context("fork").Pool(min(jobs, len(tasks)), initializer=_start_worker)
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    try:
+        with pool:
             out = []
             for k, res in enumerate(pool.imap(_run, range(len(tasks)))):
                 out.append(res)
@@ -50,7 +59,10 @@ def run_all(tasks: list[Callable[[], T]], jobs: int = 1, progress: Callable[[int
 
 def _start_worker() -> None:
     """One BLAS thread per worker: the workers already use every CPU, and OpenBLAS's spinning
-    threads would compete with them."""
+    threads would compete with them. Ctrl-C is the parent's to handle (it ends the pool): a
+    worker ignores it rather than print its own traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     from threadpoolctl import threadpool_limits
     threadpool_limits(1)
 

@@ -81,3 +81,48 @@ def test_jobs_below_one_is_a_one_line_error(capsys):
     assert main(["diagnose", str(CASE), "--jobs", "0", "-q"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--jobs must be >= 1" in err
+
+
+def test_ctrl_c_ends_the_workers_with_one_line(tmp_path):
+    """Ctrl-C reaches the whole process group: the command says 'interrupted' (exit 130), its
+    workers print nothing and none is left running."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "civic.cli", "diagnose", str(CASE), "-q", "--jobs", "2",
+                             "--json", str(tmp_path / "r.json")], cwd=ROOT, start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while proc.poll() is None and not _group(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "finished before its workers started"
+    workers = _group(proc.pid)
+    assert workers
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130
+    assert err.strip() == "civic diagnose: interrupted"
+    assert not (tmp_path / "r.json").exists()
+    time.sleep(0.5)
+    assert not [w for w in workers if _running(w)]
+
+
+def _group(pgid: int) -> list[str]:
+    """The live processes of process group `pgid` but its leader: the command's workers."""
+    return [p.name for p in Path("/proc").iterdir() if p.name.isdigit() and p.name != str(pgid)
+            and _stat(p.name)[2:3] == [str(pgid)] and _running(p.name)]
+
+
+def _stat(pid: str) -> list[str]:
+    """/proc/PID/stat's fields after the command name (state, ppid, pgrp, ...); [] once gone."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return []
+
+
+def _running(pid: str) -> bool:
+    """Whether the process lives (a zombie waiting to be reaped does not)."""
+    return _stat(pid)[:1] not in ([], ["Z"])

@@ -222,6 +222,7 @@ def test_free_run_swaps_list_what_explains_the_held_out_data_as_well():
 
     class Stub:
         model = None
+        jobs = 1
 
         def evaluate(self, mechs, **start):
             return res(held_out[mechs[-1].label], mechs[-1])

@@ -9,11 +9,7 @@ import os
 import signal
 from typing import Callable, TypeVar
 
-from civic.errors import CivicError
-
 T = TypeVar("T")
-
-WORKER_CHECK_S = 1.0    # how often a wait for a result checks that the workers still live
 
 _tasks: list[Callable[[], object]] = []
 
@@ -42,38 +38,26 @@ def run_all(tasks: list[Callable[[], T]], jobs: int = 1, progress: Callable[[int
                 progress(k + 1)
         return out
     _tasks = tasks
-    others = {p.pid for p in multiprocessing.active_children()}
     # Ctrl-C held back while the workers fork: a worker ignores it from its first instruction on
-    # (`_start_worker`), and this process gets it once they are started
+    # (`_start_worker`), and this process gets it once inside the pool's `with` (which ends them)
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         pool = multiprocessing.get_context("fork").Pool(min(jobs, len(tasks)), initializer=_start_worker)
-    finally:
+    except BaseException:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-    workers = {p.pid for p in multiprocessing.active_children()} - others
+        _tasks = []
+        raise
     try:
         with pool:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
             out = []
-            results = pool.imap(_run, range(len(tasks)))
-            for k in range(len(tasks)):
-                out.append(_next(results, workers))
+            for k, res in enumerate(pool.imap(_run, range(len(tasks)))):
+                out.append(res)
                 if progress:
                     progress(k + 1)
             return out
     finally:
         _tasks = []
-
-
-def _next(results, workers: set[int]):
-    """The next result; a worker that ended meanwhile (killed, out of memory) took its task with
-    it, and the pool would wait for that result for ever: an error instead."""
-    while True:
-        try:
-            return results.next(timeout=WORKER_CHECK_S)
-        except multiprocessing.TimeoutError:
-            if not workers <= {p.pid for p in multiprocessing.active_children()}:
-                raise CivicError("a worker process of the diagnosis ended unexpectedly (killed, or out of "
-                                 "memory?): run again, or with --jobs 1") from None
 
 
 def _start_worker() -> None:

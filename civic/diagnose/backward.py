@@ -119,11 +119,12 @@ def backward_eliminate(prob: Problem, diag: Diagnosis, candidates: list[Mechanis
     mechs = sorted(general_candidates(candidates), key=free_rim_last)
     every = np.ones_like(prob.engine.train)
     # each candidate alone first: the joint fit also starts from the best single one's values
+    alone = f"each of {len(mechs)} candidates alone"
     if progress:
-        progress(0, len(mechs) + 1, f"each of {len(mechs)} candidates alone")
+        progress(0, len(mechs) + 1, alone)
     singles = run_all([partial(prob.fit, [m], rows=every, start_cal=base.cal, start_x0=base.x0_extra,
                                starts=extra_starts(m)) for m in mechs], prob.jobs,
-                      progress and (lambda k: progress(k, len(mechs) + 1, f"each of {len(mechs)} candidates alone")))
+                      progress and (lambda k: progress(k, len(mechs) + 1, alone)))
     if progress:
         progress(len(mechs), len(mechs) + 1, f"joint fit of {len(mechs)} candidates (multi-start)")
     # from the nominal model's calibration and from the datasheet's: the calibration of a model
@@ -227,10 +228,10 @@ def _swaps(prob: Problem, finding: Mechanism, others: list[Mechanism], current: 
             return prob.evaluate(others + [c], **start)
         except RuntimeError:
             return None
+    label = f"swap: each of {len(pool)} for {finding.label}"
     if progress:
-        progress(0, len(pool), f"swap: each of {len(pool)} for {finding.label}")
-    fits = run_all([partial(swap, c) for c in pool], prob.jobs,
-                   progress and (lambda k: progress(k, len(pool), f"swap: each of {len(pool)} for {finding.label}")))
+        progress(0, len(pool), label)
+    fits = run_all([partial(swap, c) for c in pool], prob.jobs, progress and (lambda k: progress(k, len(pool), label)))
     out = []
     for c, r in zip(pool, fits):
         if r is None:

@@ -61,14 +61,17 @@ def forward_select(prob: Problem, diag: Diagnosis, candidates: list[Mechanism], 
         # a candidate the held-out blocks never see act: judged with the blocks swapped, against the
         # current model refitted the same way (from its calibration: the candidate's optimum is near it)
         unseen = [i for i, f in enumerate(fits) if f is not None and f[1]]
-        swapped, flip = None, prob.both_orders()[1:]
+        swapped, judged_flipped = None, dict.fromkeys(unseen)
         if unseen:
+            flip = prob.both_orders()[1:]
             try:
                 swapped = prob.evaluate(chosen, start_cal=current.cal, folds=flip)
             except RuntimeError:
                 pass
-        flipped = run_all([partial(_swapped_fit, prob, chosen, cands[i], swapped, flip) for i in unseen], prob.jobs)
-        judged_flipped = dict(zip(unseen, flipped))
+            else:
+                flipped = run_all([partial(_swapped_fit, prob, chosen, cands[i], swapped, flip) for i in unseen],
+                                  prob.jobs)
+                judged_flipped = dict(zip(unseen, flipped))
         for i, (cand, f) in enumerate(zip(cands, fits)):
             if f is None or (f[1] and judged_flipped[i] is None):
                 continue
@@ -149,11 +152,9 @@ def _fit_candidate(prob: Problem, chosen: list, current: FitResult, cand: Mechan
     return res, prob.unseen_held_out(res)
 
 
-def _swapped_fit(prob: Problem, chosen: list, cand: Mechanism, swapped: FitResult | None, flip: list):
+def _swapped_fit(prob: Problem, chosen: list, cand: Mechanism, swapped: FitResult, flip: list):
     """`cand` beside `chosen` judged with the blocks swapped, from the swapped reference's calibration;
-    None where that reference or the fit did not converge."""
-    if swapped is None:
-        return None
+    None where the fit did not converge."""
     try:
         return prob.evaluate(chosen + [cand], start_cal=swapped.cal, starts=extra_starts(cand), folds=flip)
     except RuntimeError:

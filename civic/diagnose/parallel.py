@@ -7,11 +7,16 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, TypeVar
+
+from civic.errors import CivicError
 
 T = TypeVar("T")
 
 _tasks: list[Callable[[], object]] = []
+_in_worker = False          # set in each worker: a worker runs its own task lists itself
 
 
 def available_cpus() -> int:
@@ -24,12 +29,12 @@ def available_cpus() -> int:
 
 def run_all(tasks: list[Callable[[], T]], jobs: int = 1, progress: Callable[[int], None] | None = None) -> list[T]:
     """`[task() for task in tasks]`, run by up to `jobs` forked worker processes (in this process
-    with one job or one task, in a pool's worker, or where the system cannot fork). `progress(k)`
-    is called here as the k-th result (in order) arrives. An exception in a task is raised here,
-    as in the serial loop."""
+    with one job or one task, in a worker of ours or of a daemonic pool, or where the system
+    cannot fork). `progress(k)` is called here as the k-th result (in order) arrives. An exception
+    in a task is raised here, as in the serial loop; a worker that died mid-task (killed, out of
+    memory) is a `CivicError`, not a wait for ever."""
     global _tasks
-    # a pool's worker (daemonic: it may not fork) runs its own task lists itself
-    if (jobs <= 1 or len(tasks) <= 1 or multiprocessing.current_process().daemon
+    if (jobs <= 1 or len(tasks) <= 1 or _in_worker or multiprocessing.current_process().daemon
             or "fork" not in multiprocessing.get_all_start_methods()):
         out = []
         for k, task in enumerate(tasks):
@@ -38,32 +43,49 @@ def run_all(tasks: list[Callable[[], T]], jobs: int = 1, progress: Callable[[int
                 progress(k + 1)
         return out
     _tasks = tasks
-    # Ctrl-C held back while the workers fork: a worker ignores it from its first instruction on
-    # (`_start_worker`), and this process gets it once inside the pool's `with` (which ends them)
+    # Ctrl-C held back while the workers fork (all of them at the first submit, with the fork
+    # context): a worker ignores it from its first instruction on (`_start_worker`), and this
+    # process gets it once they run, and ends them
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    pool, done = None, False
     try:
-        pool = multiprocessing.get_context("fork").Pool(min(jobs, len(tasks)), initializer=_start_worker)
-    except BaseException:
+        pool = ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=multiprocessing.get_context("fork"),
+                                   initializer=_start_worker)
+        futures = [pool.submit(_run, i) for i in range(len(tasks))]
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-        _tasks = []
-        raise
-    try:
-        with pool:
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-            out = []
-            for k, res in enumerate(pool.imap(_run, range(len(tasks)))):
-                out.append(res)
-                if progress:
-                    progress(k + 1)
-            return out
+        out = []
+        for k, future in enumerate(futures):
+            out.append(future.result())
+            if progress:
+                progress(k + 1)
+        done = True
+        return out
+    except BrokenProcessPool:
+        raise CivicError("a worker process of the diagnosis ended unexpectedly (killed, or out of memory?); "
+                         "run again, or with --jobs 1") from None
     finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        if pool is not None:
+            _close(pool, done)
         _tasks = []
+
+
+def _close(pool: ProcessPoolExecutor, done: bool) -> None:
+    """Shut the pool down; after a failure or Ctrl-C its workers are ended first, not waited for
+    (their tasks' results are of no use). The executor has no public call for that before
+    Python 3.14 (`terminate_workers`): its process table is read."""
+    if not done:
+        for worker in list((pool._processes or {}).values()):
+            worker.terminate()
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _start_worker() -> None:
     """One BLAS thread per worker: the workers already use every CPU, and OpenBLAS's spinning
-    threads would compete with them. Ctrl-C is the parent's to handle (it ends the pool): a
+    threads would compete with them. Ctrl-C is the parent's to handle (it ends the workers): a
     worker ignores it rather than print its own traceback."""
+    global _in_worker
+    _in_worker = True
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     from threadpoolctl import threadpool_limits

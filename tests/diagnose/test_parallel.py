@@ -34,7 +34,7 @@ def test_a_tasks_error_is_raised_here():
 
 def test_a_worker_runs_its_own_task_lists_itself():
     """A task that fans out again (a cross-validation inside a candidate's task) runs its list in
-    its worker: a pool's worker may not fork."""
+    its worker: no pool of pools, no more processes than jobs."""
     def nested():
         return run_all([os.getpid, os.getpid], jobs=2)
     out = run_all([nested, nested], jobs=2)
@@ -140,3 +140,28 @@ def _stat(pid: str) -> list[str]:
 def _running(pid: str) -> bool:
     """Whether the process lives (a zombie waiting to be reaped does not)."""
     return _stat(pid)[:1] not in ([], ["Z"])
+
+
+def test_a_worker_killed_from_outside_is_a_one_line_error(tmp_path):
+    """A worker gone mid-task (the OOM killer, kill -9) took its task with it: the command says so
+    in one line (exit 2), ends the other worker and writes no report, instead of waiting for that
+    result for ever."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "civic.cli", "diagnose", str(CASE), "-q", "--jobs", "2",
+                             "--json", str(tmp_path / "r.json")], cwd=ROOT, start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while proc.poll() is None and not _group(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "finished before its workers started"
+    workers = _group(proc.pid)
+    os.kill(int(workers[0]), signal.SIGKILL)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2, err
+    assert err.strip().count("\n") == 0 and "worker process of the diagnosis ended unexpectedly" in err
+    assert not (tmp_path / "r.json").exists()
+    assert not any(_running(pid) for pid in workers)

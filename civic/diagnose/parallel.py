@@ -4,6 +4,7 @@ closure over the problem (nothing is pickled but its result) and computes exactl
 call computes in the parent: the report and the model file do not depend on `jobs`."""
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
 import signal
@@ -14,6 +15,8 @@ from typing import Callable, TypeVar
 from civic.errors import CivicError
 
 T = TypeVar("T")
+
+PR_SET_PDEATHSIG = 1        # linux/prctl.h: the signal a process gets when its parent ends
 
 _tasks: list[Callable[[], object]] = []
 _in_worker = False          # set in each worker: a worker runs its own task lists itself
@@ -50,7 +53,7 @@ def run_all(tasks: list[Callable[[], T]], jobs: int = 1, progress: Callable[[int
     pool, done = None, False
     try:
         pool = ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=multiprocessing.get_context("fork"),
-                                   initializer=_start_worker)
+                                   initializer=_start_worker, initargs=(os.getpid(),))
         futures = [pool.submit(_run, i) for i in range(len(tasks))]
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
         out = []
@@ -80,16 +83,31 @@ def _close(pool: ProcessPoolExecutor, done: bool) -> None:
     pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _start_worker() -> None:
+def _start_worker(parent: int) -> None:
     """One BLAS thread per worker: the workers already use every CPU, and OpenBLAS's spinning
     threads would compete with them. Ctrl-C is the parent's to handle (it ends the workers): a
-    worker ignores it rather than print its own traceback."""
+    worker ignores it rather than print its own traceback. A worker ends with its parent
+    (`_end_with`)."""
     global _in_worker
     _in_worker = True
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    _end_with(parent)
     from threadpoolctl import threadpool_limits
     threadpool_limits(1)
+
+
+def _end_with(parent: int) -> None:
+    """Linux: the kernel kills this worker when `parent` ends, however it ends (kill, SIGTERM from
+    `timeout` or a service manager, the OOM killer), which leaves it no chance to end its workers:
+    none is left computing, or waiting for work, as an orphan. Elsewhere nothing is done."""
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return
+    prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:          # it ended before the request was made
+        os._exit(1)
 
 
 def _run(i: int):

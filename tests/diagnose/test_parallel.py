@@ -165,3 +165,31 @@ def test_a_worker_killed_from_outside_is_a_one_line_error(tmp_path):
     assert err.strip().count("\n") == 0 and "worker process of the diagnosis ended unexpectedly" in err
     assert not (tmp_path / "r.json").exists()
     assert not any(_running(pid) for pid in workers)
+
+
+def test_the_workers_end_with_the_command_however_it_ends(tmp_path):
+    """The command killed outright (SIGKILL: no handler runs, nothing can end the workers from
+    inside it): its workers end too, none left computing or waiting for work as an orphan."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "civic.cli", "diagnose", str(CASE), "-q", "--jobs", "2",
+                             "--json", str(tmp_path / "r.json")], cwd=ROOT, start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while proc.poll() is None and not _group(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "finished before its workers started"
+    workers = _group(proc.pid)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=60)           # not communicate: an orphan would hold its pipes open
+    deadline = time.monotonic() + 10
+    while [w for w in workers if _running(w)] and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = [w for w in workers if _running(w)]
+    for w in left:                  # not left behind by a failing run either
+        os.kill(int(w), signal.SIGKILL)
+    proc.communicate()
+    assert not left

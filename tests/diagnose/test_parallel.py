@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -45,8 +49,8 @@ def test_cross_validation_folds_in_workers_fit_what_one_process_fits():
     """The free run's blocked CV (three folds) on the Cascaded Tanks record: each fold fitted in a
     worker gives the fit one process gives, to the last bit."""
     from civic.diagnose import data
-    from civic.diagnose.mechanisms.flow_law import EXPONENT_BOUNDS, FlowLaw
     from civic.diagnose.compare import SimulationError
+    from civic.diagnose.mechanisms.flow_law import EXPONENT_BOUNDS, FlowLaw
     from civic.diagnose.problem import Calibration, Problem
     from civic.plant.model import PlantModel
 
@@ -86,20 +90,7 @@ def test_jobs_below_one_is_a_one_line_error(capsys):
 def test_ctrl_c_ends_the_workers_with_one_line(tmp_path):
     """Ctrl-C reaches the whole process group: the command says 'interrupted' (exit 130), its
     workers print nothing and none is left running."""
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    proc = subprocess.Popen([sys.executable, "-m", "civic.cli", "diagnose", str(CASE), "-q", "--jobs", "2",
-                             "--json", str(tmp_path / "r.json")], cwd=ROOT, start_new_session=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 60
-    while proc.poll() is None and not _group(proc.pid) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert proc.poll() is None, "finished before its workers started"
-    workers = _group(proc.pid)
-    assert workers
+    proc, workers = _started_with_workers(tmp_path / "r.json")
     os.killpg(proc.pid, signal.SIGINT)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 130
@@ -107,6 +98,47 @@ def test_ctrl_c_ends_the_workers_with_one_line(tmp_path):
     assert not (tmp_path / "r.json").exists()
     time.sleep(0.5)
     assert not [w for w in workers if _running(w)]
+
+
+def test_a_worker_killed_from_outside_is_a_one_line_error(tmp_path):
+    """A worker gone mid-task (the OOM killer, kill -9) took its task with it: the command says so
+    in one line (exit 2), ends the other worker and writes no report, instead of waiting for that
+    result for ever."""
+    proc, workers = _started_with_workers(tmp_path / "r.json")
+    os.kill(int(workers[0]), signal.SIGKILL)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2, err
+    assert err.strip().count("\n") == 0 and "worker process of the diagnosis ended unexpectedly" in err
+    assert not (tmp_path / "r.json").exists()
+    assert not any(_running(pid) for pid in workers)
+
+
+def test_the_workers_end_with_the_command_however_it_ends(tmp_path):
+    """The command killed outright (SIGKILL: no handler runs, nothing can end the workers from
+    inside it): its workers end too, none left computing or waiting for work as an orphan."""
+    proc, workers = _started_with_workers(tmp_path / "r.json")
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=60)           # not communicate: an orphan would hold its pipes open
+    deadline = time.monotonic() + 10
+    while [w for w in workers if _running(w)] and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = [w for w in workers if _running(w)]
+    for w in left:                  # not left behind by a failing run either
+        os.kill(int(w), signal.SIGKILL)
+    proc.communicate()
+    assert not left
+
+
+def _started_with_workers(report: Path) -> tuple[subprocess.Popen, list[str]]:
+    """`civic diagnose --jobs 2` on the leak case, in a session of its own, once both its workers run."""
+    proc = subprocess.Popen([sys.executable, "-m", "civic.cli", "diagnose", str(CASE), "-q", "--jobs", "2",
+                             "--json", str(report)], cwd=ROOT, start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while proc.poll() is None and not _group(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "finished before its workers started"
+    return proc, _group(proc.pid)
 
 
 def _group(pgid: int) -> list[str]:
@@ -140,56 +172,3 @@ def _stat(pid: str) -> list[str]:
 def _running(pid: str) -> bool:
     """Whether the process lives (a zombie waiting to be reaped does not)."""
     return _stat(pid)[:1] not in ([], ["Z"])
-
-
-def test_a_worker_killed_from_outside_is_a_one_line_error(tmp_path):
-    """A worker gone mid-task (the OOM killer, kill -9) took its task with it: the command says so
-    in one line (exit 2), ends the other worker and writes no report, instead of waiting for that
-    result for ever."""
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    proc = subprocess.Popen([sys.executable, "-m", "civic.cli", "diagnose", str(CASE), "-q", "--jobs", "2",
-                             "--json", str(tmp_path / "r.json")], cwd=ROOT, start_new_session=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 60
-    while proc.poll() is None and not _group(proc.pid) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert proc.poll() is None, "finished before its workers started"
-    workers = _group(proc.pid)
-    os.kill(int(workers[0]), signal.SIGKILL)
-    out, err = proc.communicate(timeout=120)
-    assert proc.returncode == 2, err
-    assert err.strip().count("\n") == 0 and "worker process of the diagnosis ended unexpectedly" in err
-    assert not (tmp_path / "r.json").exists()
-    assert not any(_running(pid) for pid in workers)
-
-
-def test_the_workers_end_with_the_command_however_it_ends(tmp_path):
-    """The command killed outright (SIGKILL: no handler runs, nothing can end the workers from
-    inside it): its workers end too, none left computing or waiting for work as an orphan."""
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    proc = subprocess.Popen([sys.executable, "-m", "civic.cli", "diagnose", str(CASE), "-q", "--jobs", "2",
-                             "--json", str(tmp_path / "r.json")], cwd=ROOT, start_new_session=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 60
-    while proc.poll() is None and not _group(proc.pid) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert proc.poll() is None, "finished before its workers started"
-    workers = _group(proc.pid)
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.wait(timeout=60)           # not communicate: an orphan would hold its pipes open
-    deadline = time.monotonic() + 10
-    while [w for w in workers if _running(w)] and time.monotonic() < deadline:
-        time.sleep(0.05)
-    left = [w for w in workers if _running(w)]
-    for w in left:                  # not left behind by a failing run either
-        os.kill(int(w), signal.SIGKILL)
-    proc.communicate()
-    assert not left

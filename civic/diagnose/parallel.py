@@ -33,18 +33,13 @@ def available_cpus() -> int:
 def run_all(tasks: list[Callable[[], T]], jobs: int = 1, progress: Callable[[int], None] | None = None) -> list[T]:
     """`[task() for task in tasks]`, run by up to `jobs` forked worker processes (in this process
     with one job or one task, in a worker of ours or of a daemonic pool, or where the system
-    cannot fork). `progress(k)` is called here as the k-th result (in order) arrives. An exception
+    cannot fork or start a pool). `progress(k)` is called here as the k-th result (in order) arrives. An exception
     in a task is raised here, as in the serial loop; a worker that died mid-task (killed, out of
     memory) is a `CivicError`, not a wait for ever."""
     global _tasks
     if (jobs <= 1 or len(tasks) <= 1 or _in_worker or multiprocessing.current_process().daemon
             or "fork" not in multiprocessing.get_all_start_methods()):
-        out = []
-        for k, task in enumerate(tasks):
-            out.append(task())
-            if progress:
-                progress(k + 1)
-        return out
+        return _here(tasks, progress)
     _tasks = tasks
     # Ctrl-C held back while the workers fork (all of them at the first submit, with the fork
     # context): a worker ignores it from its first instruction on (`_start_worker`), and this
@@ -52,10 +47,19 @@ def run_all(tasks: list[Callable[[], T]], jobs: int = 1, progress: Callable[[int
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     pool, done = None, False
     try:
-        pool = ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=multiprocessing.get_context("fork"),
-                                   initializer=_start_worker, initargs=(os.getpid(),))
-        futures = [pool.submit(_run, i) for i in range(len(tasks))]
+        try:
+            pool = ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=multiprocessing.get_context("fork"),
+                                       initializer=_start_worker, initargs=(os.getpid(),))
+            futures = [pool.submit(_run, i) for i in range(len(tasks))]
+        except OSError:
+            # no POSIX semaphores (a container without /dev/shm) or no process to spare (a limit
+            # on processes): the same fits, in this process
+            if pool is not None:
+                _close(pool, False)
+            pool, futures = None, None
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        if futures is None:
+            return _here(tasks, progress)
         out = []
         for k, future in enumerate(futures):
             out.append(future.result())
@@ -71,6 +75,16 @@ def run_all(tasks: list[Callable[[], T]], jobs: int = 1, progress: Callable[[int
         if pool is not None:
             _close(pool, done)
         _tasks = []
+
+
+def _here(tasks: list[Callable[[], T]], progress: Callable[[int], None] | None) -> list[T]:
+    """The serial loop run_all stands for."""
+    out = []
+    for k, task in enumerate(tasks):
+        out.append(task())
+        if progress:
+            progress(k + 1)
+    return out
 
 
 def _close(pool: ProcessPoolExecutor, done: bool) -> None:

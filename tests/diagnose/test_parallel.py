@@ -36,6 +36,18 @@ def test_a_tasks_error_is_raised_here():
         run_all([lambda: 1, fails, lambda: 3], jobs=2)
 
 
+def test_where_no_process_can_be_forked_the_tasks_run_here(monkeypatch):
+    """A limit on processes (fork fails with EAGAIN) or no POSIX semaphores: the same results, from
+    this process, instead of an error."""
+    def no_fork():
+        raise BlockingIOError(11, "Resource temporarily unavailable")
+    monkeypatch.setattr(os, "fork", no_fork)
+    seen = []
+    assert run_all([lambda k=k: (k, os.getpid()) for k in range(4)], jobs=2, progress=seen.append) == \
+        [(k, os.getpid()) for k in range(4)]
+    assert seen == [1, 2, 3, 4]
+
+
 def test_a_worker_runs_its_own_task_lists_itself():
     """A task that fans out again (a cross-validation inside a candidate's task) runs its list in
     its worker: no pool of pools, no more processes than jobs."""

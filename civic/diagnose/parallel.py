@@ -33,9 +33,9 @@ def available_cpus() -> int:
 def run_all(tasks: list[Callable[[], T]], jobs: int = 1, progress: Callable[[int], None] | None = None) -> list[T]:
     """`[task() for task in tasks]`, run by up to `jobs` forked worker processes (in this process
     with one job or one task, in a worker of ours or of a daemonic pool, or where the system
-    cannot fork or start a pool). `progress(k)` is called here as the k-th result (in order) arrives. An exception
-    in a task is raised here, as in the serial loop; a worker that died mid-task (killed, out of
-    memory) is a `CivicError`, not a wait for ever."""
+    cannot fork or start a pool). `progress(k)` is called here as the k-th result (in order)
+    arrives. An exception in a task is raised here, as in the serial loop; a worker that died
+    mid-task (killed, out of memory) is a `CivicError`, not a wait for ever."""
     global _tasks
     if (jobs <= 1 or len(tasks) <= 1 or _in_worker or multiprocessing.current_process().daemon
             or "fork" not in multiprocessing.get_all_start_methods()):

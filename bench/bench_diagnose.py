@@ -19,6 +19,9 @@ and which structure transfers (fixed candidate sets, fitted jointly without elim
 ~15 min on one core):
     python bench/bench_diagnose.py --structures ["NAME;NAME..."]
 
+Two concealed effects at once (PAIRS in bench/diagnose_sweep.py: both named, nothing else):
+    python bench/bench_diagnose.py --pairs 1,2,3 [--via-pcap]
+
 Robustness sweep alone, every case printed (--off-grid: at the magnitudes of OFF_GRID instead):
     python bench/bench_diagnose.py --robustness 1,2,3,4,5,6,7,8 [CASE,CASE...] [--off-grid] [--via-pcap]
                                    [--operation TRUTH.json]
@@ -55,7 +58,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import civic  # noqa: E402,F401  (before numpy: it pins the CPU code paths, civic/__init__.py)
-from bench.diagnose_sweep import robustness  # noqa: E402
+from bench.diagnose_sweep import pairs, robustness  # noqa: E402
 from bench.diagnose_transfer import CASCADED, transfer, transfer_structures  # noqa: E402
 
 TARGETS = {600.0: 10.0, 3600.0: 60.0}
@@ -174,6 +177,8 @@ if __name__ == "__main__":
         transfer(offsets=_integers(args[0], "--transfer OFFSETS") if args else (0,))
     elif mode == "--structures":
         transfer_structures(args[0].split(";") if args else None)
+    elif mode == "--pairs" and args:
+        sys.exit(pairs(_integers(args[0], "--pairs SEEDS"), via_pcap="--via-pcap" in args[1:]))
     elif mode == "--robustness" and args:
         operation = None
         if "--operation" in args:

@@ -88,6 +88,23 @@ OFF_GRID = {
     "clean": (0.0,),
 }
 OFF_GRID_KINDS = {"offset_L2": ("sensor_offset", "L2")}   # (mechanism, component) of cases SWEEP lacks
+# Two concealed effects at once (sweep cases and magnitudes): session 20's ten pairs (a second
+# fault hidden by the first) and real-rig physics beside a fault. None needs a rim or a clip reached.
+PAIRS = (
+    (("leak_T3", 0.012), ("offset_L1", 0.4)),
+    (("leak_T1", 0.010), ("deadtime_V2", 2.0)),
+    (("flowlaw_pipe23", 0.6), ("leak_T3", 0.012)),
+    (("sensorchar_L2", 1.1), ("leak_T3_out", 0.008)),
+    (("deadzone_P1", 0.05), ("offset_L3", 0.3)),
+    (("valve_V2", 1.5), ("leak_T1", 0.010)),
+    (("closure_V2", 0.55), ("leak_T1", 0.010)),
+    (("leakon_T3", 0.012), ("offset_L1", 0.4)),
+    (("shift_L3", 0.15), ("flowlaw_pipe23", 0.6)),
+    (("glitch_L1", 0.3), ("leak_T3", 0.012)),
+    (("flowlaw_V2", 0.6), ("deadzone_P1", 0.05)),
+    (("sensorchar_L1", 1.1), ("closure_P1", 0.4)),
+    (("deadzone_P1", 0.05), ("leak_T2", 0.010)),
+)
 ONSET = 300.0   # s into the 600 s record
 SHIFT_AT = 302.3  # s: a sensor knocked mid-run, between two of the equation error's window starts
 DRIFT_FROM = 200.0  # s: a sensor that starts drifting
@@ -107,16 +124,24 @@ def split_rim(tank: str) -> float:
     return 9.0 if tank == "T1" else SPILL_RIM
 
 
-def sweep_plant(nominal, case: str, mag: float, seed: int):
-    """The 'real' plant of a sweep case: calibration spread + the concealed mechanism."""
+def sweep_plant(nominal, case: str, mag, seed: int):
+    """The 'real' plant of a sweep case: calibration spread + the concealed mechanism (or, for a
+    pair "A+B", both, `mag` then a pair of magnitudes)."""
     import numpy as np
-
-    from civic.plant.model import Link, Overflow
 
     rng = np.random.default_rng(seed * 1000 + 17)
     m = nominal.copy()
     for path in ("pump.P1.gain", "link.V1.coeff", "link.pipe23.coeff", "link.V2.coeff"):
         m.set(path, float(m.get(path)) * (1 + rng.uniform(-0.04, 0.04)))
+    for part, size in zip(case.split("+"), mag if "+" in case else (mag,)):
+        _conceal(m, part, size)
+    return m
+
+
+def _conceal(m, case: str, mag: float) -> None:
+    """Edit plant `m` in place: one sweep case's concealed mechanism at magnitude `mag`."""
+    from civic.plant.model import Link, Overflow
+
     kind, _, comp = case.partition("_")
     if kind in ("leak", "leakon"):
         tank = comp.split("_")[0]
@@ -171,18 +196,16 @@ def sweep_plant(nominal, case: str, mag: float, seed: int):
     elif kind == "closure":
         x = m.find("pump" if comp.startswith("P") else "link", comp)
         x.closure, x.onset = mag, ONSET
-    return m
 
 
-def sweep_case(job) -> dict:
-    import numpy as np
-
+def _run_and_diagnose(case: str, mag, seed: int, via_pcap: bool, operation: str | None):
+    """The case's closed-loop run and `civic diagnose` on it: (nominal model, real plant, run,
+    diagnosis, the lines the loader left out)."""
     from civic.diagnose.fit import diagnose
     from civic.plant.control import run_closed_loop
     from civic.plant.model import PlantModel
     from civic.plant.simulate import Recording
 
-    case, mag, seed, via_pcap, operation = job
     nominal = PlantModel.from_toml(ROOT / "configs" / "plant.toml")
     plant = sweep_plant(nominal, case, mag, seed)
     if operation is None and (case.startswith("spill") or case == "split_T2"):
@@ -208,7 +231,14 @@ def sweep_case(job) -> dict:
     else:
         rec = Recording(res.t, res.signals, res.fields, case)
         left_out = []
-    d = diagnose(nominal, rec)
+    return nominal, plant, res, diagnose(nominal, rec), left_out
+
+
+def sweep_case(job) -> dict:
+    import numpy as np
+
+    case, mag, seed, via_pcap, operation = job
+    nominal, plant, res, d, left_out = _run_and_diagnose(case, mag, seed, via_pcap, operation)
     want = SWEEP[case][:2] if case in SWEEP else OFF_GRID_KINDS[case]
     active = True
     if case.startswith("overflow"):
@@ -223,43 +253,89 @@ def sweep_case(job) -> dict:
     named = [(f["mechanism"].name, f["mechanism"].component) for f in d.findings]
     # right: the first finding names the mechanism and component, and nothing else is found
     ok = (not d.mismatch) if want[0] is None or not active else named[:1] == [want] and len(named) == 1
-    if ok and want[0] == "leak":     # and where the water goes, and since when
-        p = d.findings[0]["fit"].mechanisms[-1].values()
-        ok = p["to"] == ("outside" if case.endswith("_out") else "T4")
-        named[0] += (p["to"],)
-        if case.startswith("leakon"):
-            ok = ok and p.get("not_before", -1.0) <= ONSET <= p.get("not_after", -1.0) and "until" not in p
-            named[0] += (f"from {p.get('since', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})",)
-        elif case.startswith("repaired"):
-            ok = ok and "since" not in p and _ended(p, REPAIRED_AT)
-            named[0] += (_until(p),)
-        else:
-            ok = ok and "since" not in p and "until" not in p
-    if ok and want[0] == "sensor_offset":   # from the start, or since when
-        p = d.findings[0]["fit"].mechanisms[-1].values()
-        if case.startswith(("shift", "drift", "glitch")):
-            at = {"shift": SHIFT_AT, "drift": DRIFT_FROM, "glitch": SPELL[0]}[case.partition("_")[0]]
-            ok = p.get("not_before", -1.0) <= at <= p.get("not_after", -1.0) and ("drift" in p) == case.startswith("drift")
-            ok = ok and (_ended(p, SPELL[1]) if case.startswith("glitch") else "until" not in p)
-            named[0] += (("drifting " if "drift" in p else "") + f"from {p.get('since', 0.0):g} s "
-                         f"({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})"
-                         + (f" {_until(p)}" if "until" in p else ""),)
-        elif case.startswith("righted"):
-            ok = "since" not in p and _ended(p, REPAIRED_AT)
-            named[0] += (_until(p),)
-        else:
-            ok = "since" not in p and "until" not in p
-    if ok and want[0] == "closure":  # and since when (and until when)
-        p = d.findings[0]["fit"].mechanisms[-1].values()
-        on = SPELL[0] if case.startswith("spell") else ONSET
-        ok = p.get("not_before", -1.0) <= on <= p.get("not_after", -1.0)
-        ok = ok and (_ended(p, SPELL[1]) if case.startswith("spell") else "until" not in p)
-        named[0] += (f"from {p.get('onset', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})"
-                     + (f" {_until(p)}" if "until" in p else ""),)
+    if ok and want[0] in ("leak", "sensor_offset", "closure"):
+        ok, detail = _judge(case, d.findings[0]["fit"].mechanisms[-1].values())
+        named[0] += detail
     return {"case": case, "mag": mag, "seed": seed, "active": active, "ok": ok and not left_out,
             "findings": named + left_out,
             "flagged": d.loc.flagged, "effect": replay_change(plant, sweep_plant(nominal, "clean", 0.0, seed), res),
             "excess": replay_change(plant, d.model_calibrated, res)}
+
+
+def pair_case(job) -> dict:
+    """A run with two concealed effects: right when the findings are exactly the two mechanisms on
+    their components (in either order), each saying what its case did (`_judge`)."""
+    case, mags, seed, via_pcap = job
+    nominal, plant, res, d, left_out = _run_and_diagnose(case, mags, seed, via_pcap, None)
+    named = [(f["mechanism"].name, f["mechanism"].component) for f in d.findings]
+    values = [(d.final_all.mechanisms[i] if d.final_all else f["fit"].mechanisms[-1]).values()
+              for i, f in enumerate(d.findings)]
+    ok, said = len(named) == 2, list(named)
+    for part in case.split("+"):
+        want = SWEEP[part][:2]
+        if want not in named:
+            ok = False
+            continue
+        k = named.index(want)
+        right, detail = _judge(part, values[k])
+        ok, said[k] = ok and right, said[k] + detail
+    return {"case": case, "mag": mags, "seed": seed, "ok": ok and not left_out, "findings": said + left_out,
+            "effect": replay_change(plant, sweep_plant(nominal, "clean", 0.0, seed), res)}
+
+
+def pairs(seeds: list[int], via_pcap: bool = False) -> int:
+    """Every pair of PAIRS on each seed, printed one a line, then the rate."""
+    from multiprocessing import Pool
+
+    jobs = [("+".join(c for c, _ in pair), tuple(m for _, m in pair), s, via_pcap) for pair in PAIRS for s in seeds]
+    good = 0
+    with Pool(int(os.environ.get("CIVIC_BENCH_PROCS", "2"))) as pool:
+        for r in pool.imap_unordered(pair_case, jobs):
+            good += r["ok"]
+            print(f"{'ok ' if r['ok'] else 'BAD'} {r['case']} {'/'.join(f'{m:g}' for m in r['mag'])} seed {r['seed']}:"
+                  f" {r['findings'] or 'no finding'}  [replay: effect {r['effect']:.1f} sigma]", flush=True)
+    print(f"\ntwo concealed effects at once: both named, each on its component, nothing else: {good}/{len(jobs)}")
+    return 0
+
+
+def _judge(case: str, p: dict) -> tuple[bool, tuple]:
+    """Whether a finding of the case's mechanism says what the case did beyond mechanism and
+    component (where a leak's water goes; from when, until when), and those words."""
+    kind = case.partition("_")[0]
+    mech = SWEEP[case][0] if case in SWEEP else OFF_GRID_KINDS[case][0]
+    detail: tuple = ()
+    ok = True
+    if mech == "leak":     # where the water goes, and since when
+        ok = p["to"] == ("outside" if case.endswith("_out") else "T4")
+        detail += (p["to"],)
+        if kind == "leakon":
+            ok = ok and p.get("not_before", -1.0) <= ONSET <= p.get("not_after", -1.0) and "until" not in p
+            detail += (f"from {p.get('since', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})",)
+        elif kind == "repaired":
+            ok = ok and "since" not in p and _ended(p, REPAIRED_AT)
+            detail += (_until(p),)
+        else:
+            ok = ok and "since" not in p and "until" not in p
+    elif mech == "sensor_offset":   # from the start, or since when
+        if kind in ("shift", "drift", "glitch"):
+            at = {"shift": SHIFT_AT, "drift": DRIFT_FROM, "glitch": SPELL[0]}[kind]
+            ok = p.get("not_before", -1.0) <= at <= p.get("not_after", -1.0) and ("drift" in p) == (kind == "drift")
+            ok = ok and (_ended(p, SPELL[1]) if kind == "glitch" else "until" not in p)
+            detail += (("drifting " if "drift" in p else "") + f"from {p.get('since', 0.0):g} s "
+                       f"({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})"
+                       + (f" {_until(p)}" if "until" in p else ""),)
+        elif kind == "righted":
+            ok = "since" not in p and _ended(p, REPAIRED_AT)
+            detail += (_until(p),)
+        else:
+            ok = "since" not in p and "until" not in p
+    elif mech == "closure":  # since when (and until when)
+        on = SPELL[0] if kind == "spell" else ONSET
+        ok = p.get("not_before", -1.0) <= on <= p.get("not_after", -1.0)
+        ok = ok and (_ended(p, SPELL[1]) if kind == "spell" else "until" not in p)
+        detail += (f"from {p.get('onset', 0.0):g} s ({p.get('not_before', 0.0):g}-{p.get('not_after', 0.0):g})"
+                   + (f" {_until(p)}" if "until" in p else ""),)
+    return ok, detail
 
 
 def _ended(p: dict, at: float) -> bool:

@@ -130,6 +130,11 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
                       "separate and those that fit the training blocks best (pooled held-out BIC vs the model "
                       "without: "
                       + ", ".join(f"{v['candidate']} {v['dbic']:+.1f}" for v in f["both_orders"]) + ")")
+        if f.get("what_follows"):
+            w = f["what_follows"]
+            ev.append(f"both block orders did not separate it from {w['other']}: chosen by what follows, the "
+                      f"selection after it ending {-w['dbic']:.1f} lower in held-out BIC than after "
+                      + (", ".join(w["other_findings"]) or "the other"))
         if isinstance(eng, EquationError):
             Rp = _resid(diag, f["prev"])            # the model without this finding
             tanks = [mech.component] if mech.component in eng.columns else []
@@ -185,6 +190,11 @@ def build_report(diag: Diagnosis, rec: Recording, n_init: int = 1, skip: int = 0
             findings[-1]["heldout_dbic_both_orders"] = round(f["dbic_both_orders"], 2)
             findings[-1]["variants_both_orders"] = [{"candidate": v["candidate"], "heldout_dbic": round(v["dbic"], 2)}
                                                     for v in f["both_orders"]]
+        if f.get("what_follows"):
+            # a near-tie decided by the rounds after it: the path not taken and how much worse it ended
+            w = f["what_follows"]
+            findings[-1]["what_follows"] = {"other": w["other"], "other_findings": w["other_findings"],
+                                            "heldout_bic_vs_other": round(w["dbic"], 2)}
         if "heldout_rmse_without" in f:
             findings[-1]["heldout_rmse_without"] = round(f["heldout_rmse_without"], 6)
         findings[-1]["heldout_error"] = _heldout_error(f["fit"])

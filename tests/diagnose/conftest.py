@@ -142,9 +142,9 @@ def make_fault(nominal, name):
         x.closure, x.onset = 0.55, 300.0
         m.links.append(Link("leak", from_="T1", to="T4", coeff=0.010, law="orifice"))
     elif name.startswith("shift_L3+flowlaw_pipe23"):
-        # the sweep's seed-3 (or -5) plant, L3's reading 0.15 L up from 302.3 s and pipe23's
+        # the sweep's seed-3 (or -2, -5) plant, L3's reading 0.15 L up from 302.3 s and pipe23's
         # flow ~ dh**0.6
-        draw_calibration(m, nominal, SWEEP_SEED5 if name.endswith("seed5") else SWEEP_SEED3)
+        draw_calibration(m, nominal, {"seed2": SWEEP_SEED2, "seed5": SWEEP_SEED5}.get(name[-5:], SWEEP_SEED3))
         s = m.find("sensor", "L3")
         s.shift, s.since = 0.15, 302.3
         m.find("link", "pipe23").exponent = 0.6

@@ -86,6 +86,24 @@ def test_second_fault_acting_throughout_is_sought_where_the_first_leaves_a_balan
     assert abs(d.final_all.mechanisms[1].values()["exponent"] - 0.6) < 0.05
 
 
+def test_a_near_tie_goes_to_what_follows(closed_loop_case, nominal):
+    """The same L3 step and pipe23 exponent on the sweep's seed-2 plant: L3 reading low *until*
+    302.3 s led reading high *from* it on both block orders by less than ALT_DBIC, and left nothing
+    for the flow law. Carried on, the step from 302.3 s with the flow law ends far lower in held-out
+    BIC, so it is chosen, and the report names the path not taken."""
+    from civic.diagnose.report import build_report
+
+    rec = closed_loop_case("shift_L3+flowlaw_pipe23_seed2", seed=2)
+    d = diagnose(nominal, rec)
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == \
+        [("sensor_offset", "L3"), ("flow_law", "pipe23")]
+    step, law = (m.values() for m in d.final_all.mechanisms)
+    assert step["not_before"] <= 302.3 <= step["not_after"] and "until" not in step, step
+    assert abs(step["offset"] - 0.15) < 0.03 and abs(law["exponent"] - 0.6) < 0.05, (step, law)
+    follows = build_report(d, rec)["findings"][0]["what_follows"]
+    assert follows["other"] == "sensor_offset(L3 until 302.3 s)" and follows["heldout_bic_vs_other"] < -10, follows
+
+
 def test_leak_that_opens_mid_run_is_dated(closed_loop_case, nominal):
     """A T3 leak that opens 300 s into the record: a leak from then on (its onset bracketed, its
     coefficient the leak's, not the record's average), active from there; the report says so."""

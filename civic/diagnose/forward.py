@@ -167,14 +167,16 @@ def _decide_by_what_follows(prob: Problem, diag: Diagnosis, all_candidates: list
                             current: FitResult, picks: tuple, decision: tuple, round_: int, count: dict,
                             progress):
     """A round whose two best candidates both block orders do not separate (within ALT_DBIC of
-    each other, pooled) goes to the one whose selection, carried on to its end, ends at the lower
-    held-out BIC on both block orders (pooled, the evidence the tie was judged on): each is
-    adopted in turn and the rounds after it run (without a further branch). A mismatch the first
-    finding explains only in part can favour the variant that also absorbs some of a second
-    effect: with an L3 step of 0.15 at 302.3 s and pipe23's flow ~ dh**0.6, L3 reading 0.075 low
-    *until* 302.3 s led reading 0.11 high *from* it by 6.9 (pooled), and then nothing was left
-    for the flow law; after the step from 302.3 s the flow law joined (exponent 0.599). The other
-    path is reported with the finding (`what_follows`)."""
+    each other, pooled), or are variants of one mechanism on one component, goes to the one whose
+    selection, carried on to its end, ends at the lower held-out BIC on both block orders (pooled,
+    the evidence the round was judged on): each is adopted in turn and the rounds after it run
+    (without a further branch). A mismatch the first finding explains only in part can favour the
+    variant that also absorbs some of a second effect: with an L3 step of 0.15 at 302.3 s and
+    pipe23's flow ~ dh**0.6, L3 reading 0.075 low *until* 302.3 s led reading 0.11 high *from* it
+    by 6.9 (pooled; by 40 under the PI loops), and then nothing was left for the flow law; after
+    the step from 302.3 s the flow law joined (exponent 0.599). A runner-up that lost by much
+    needs a real second effect to end lower. The other path is reported with the finding
+    (`what_follows`)."""
     results, both, both_fits, min_gain = decision
     paths = []
     for pick in picks:
@@ -274,7 +276,8 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
     them, judged on the pooled evidence alone (their `how`: BOTH_ORDERS). Also returns,
     when that decision was taken, each one's pooled held-out BIC change against the model without it
     (best first), the both-order fits ("reference" and candidate labels), and the runner-up where
-    the pooled evidence does not separate it from the one adopted (within ALT_DBIC), else None."""
+    the pooled evidence does not separate it from the one adopted (within ALT_DBIC) or it is a
+    variant of the adopted one's mechanism on its component, else None."""
     cand, how = best[0], best[2][2]
     top = _heldout_dbic(best)
     pool = [x for x in results if not x[2][2] and significant(x[2][0], x[2][1], min_gain)[0]
@@ -299,8 +302,16 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
                  for x in contenders if _pooled_significant(fits[x[0].label], ref, min_gain)[0]]
     eligible.sort(key=lambda e: e[0])
     chosen_one = eligible[0][1] if eligible else best
-    # the next one, where both orders do not separate it from the chosen one: a near-tie
-    runner_up = eligible[1][1] if len(eligible) > 1 and eligible[1][0] - eligible[0][0] < ALT_DBIC else None
+    # the next one, where both orders do not separate it from the chosen one (a near-tie), or where
+    # it is a variant of the chosen one's mechanism on its component: variants split an effect
+    # differently between what acts throughout and what from or until a time (a reading off from
+    # 302.3 s, or off the other way until then and so throughout by a constant), and what acts
+    # throughout trades with other effects (a flow law on a link the sensor sees)
+    runner_up = None
+    if len(eligible) > 1:
+        (top_dbic, top), (next_dbic, nxt) = eligible[:2]
+        if next_dbic - top_dbic < ALT_DBIC or (nxt[0].name, nxt[0].component) == (top[0].name, top[0].component):
+            runner_up = nxt
     return chosen_one, decided, {"reference": ref, **fits}, runner_up
 
 

@@ -174,23 +174,23 @@ def _decide_by_what_follows(prob: Problem, diag: Diagnosis, all_candidates: list
     variant that also absorbs some of a second effect: with an L3 step of 0.15 at 302.3 s and
     pipe23's flow ~ dh**0.6, L3 reading 0.075 low *until* 302.3 s led reading 0.11 high *from* it
     by 6.9 (pooled; by 40 under the PI loops), and then nothing was left for the flow law; after
-    the step from 302.3 s the flow law joined (exponent 0.599). A runner-up that lost by much
+    the step from 302.3 s the flow law joined (exponent 0.60). A runner-up that lost by much
     needs a real second effect to end lower. The other path is reported with the finding
     (`what_follows`)."""
     results, both, both_fits, min_gain = decision
     paths = []
     for pick in picks:
-        branch = replace(diag, findings=list(diag.findings), negligible=dict(diag.negligible))
-        taken = _adopt(prob, branch, chosen, current, pick, decision)
+        on_path = replace(diag, findings=list(diag.findings), negligible=dict(diag.negligible))
+        taken = _adopt(prob, on_path, chosen, current, pick, decision)
         if taken is None:
-            paths.append((branch, (chosen, current), both_fits["reference"].val_bic))
+            paths.append((on_path, (chosen, current), both_fits["reference"].val_bic))
             continue
-        nxt = _next_candidates(prob, branch, all_candidates, *taken)
+        nxt = _next_candidates(prob, on_path, all_candidates, *taken)
         count["planned"] += len(nxt)
-        ended = _rounds(prob, branch, all_candidates, nxt, *taken, round_ + 1, count, progress, branch=False)
+        ended = _rounds(prob, on_path, all_candidates, nxt, *taken, round_ + 1, count, progress, branch=False)
         pooled = (both_fits[pick[0].label] if len(ended[0]) == len(taken[0]) else
                   prob.evaluate(ended[0], start_cal=ended[1].cal, folds=prob.both_orders()))
-        paths.append((branch, ended, pooled.val_bic))
+        paths.append((on_path, ended, pooled.val_bic))
     (won, ended, bic), (lost, _, other_bic) = sorted(paths, key=lambda p: p[2])
     diag.findings, diag.negligible = won.findings, won.negligible
     if len(diag.findings) > round_:

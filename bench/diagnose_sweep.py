@@ -253,7 +253,7 @@ def sweep_case(job) -> dict:
     named = [(f["mechanism"].name, f["mechanism"].component) for f in d.findings]
     # right: the first finding names the mechanism and component, and nothing else is found
     ok = (not d.mismatch) if want[0] is None or not active else named[:1] == [want] and len(named) == 1
-    if ok and want[0] in ("leak", "sensor_offset", "closure"):
+    if ok and d.findings:   # and what the finding says beyond mechanism and component
         ok, detail = _judge(case, d.findings[0]["fit"].mechanisms[-1].values())
         named[0] += detail
     return {"case": case, "mag": mag, "seed": seed, "active": active, "ok": ok and not left_out,

@@ -177,7 +177,7 @@ def _decide_by_what_follows(prob: Problem, diag: Diagnosis, all_candidates: list
     the step from 302.3 s the flow law joined (exponent 0.60). A runner-up that lost by much
     needs a real second effect to end lower. The other path is reported with the finding
     (`what_follows`)."""
-    results, both, both_fits, min_gain = decision
+    both_fits = decision[2]
     paths = []
     for pick in picks:
         on_path = replace(diag, findings=list(diag.findings), negligible=dict(diag.negligible))

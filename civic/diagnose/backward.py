@@ -221,7 +221,7 @@ def _swaps(prob: Problem, finding: Mechanism, others: list[Mechanism], current: 
     of the chosen set's and below the set without the finding, and not negligible. The record
     cannot tell them apart (best first); like the equation error's, they are never findings and
     a variant of the finding's own family on its component is not one."""
-    pool = [c for c in pool if (c.name, c.component) != (finding.name, finding.component)]
+    pool = [c for c in pool if not c.variant_of(finding)]
 
     def swap(c):
         try:

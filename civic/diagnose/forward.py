@@ -281,7 +281,7 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
     cand, how = best[0], best[2][2]
     top = _heldout_dbic(best)
     pool = [x for x in results if not x[2][2] and significant(x[2][0], x[2][1], min_gain)[0]
-            and ((x[0].name, x[0].component) == (cand.name, cand.component) or _heldout_dbic(x) - top < ALT_DBIC)]
+            and (x[0].variant_of(cand) or _heldout_dbic(x) - top < ALT_DBIC)]
     rest = [x for x in results if not x[2][2] and all(x is not y for y in pool)]
     contenders = sorted(rest, key=lambda x: x[1].train_sse)[:CONTENDERS]
     if len(pool) + len(contenders) < 2 or how or prob.engine.short or not isinstance(prob.engine, EquationError):
@@ -309,8 +309,8 @@ def _decide_on_both_orders(prob: Problem, chosen: list, current: FitResult, resu
     # throughout trades with other effects (a flow law on a link the sensor sees)
     runner_up = None
     if len(eligible) > 1:
-        (top_dbic, top), (next_dbic, nxt) = eligible[:2]
-        if next_dbic - top_dbic < ALT_DBIC or (nxt[0].name, nxt[0].component) == (top[0].name, top[0].component):
+        (first_dbic, first), (next_dbic, nxt) = eligible[:2]
+        if next_dbic - first_dbic < ALT_DBIC or nxt[0].variant_of(first[0]):
             runner_up = nxt
     return chosen_one, decided, {"reference": ref, **fits}, runner_up
 
@@ -354,7 +354,7 @@ def indistinguishable(results, cand: Mechanism, dbic: float, min_gain: float = M
     out = []
     for c, res, (r, ref, _) in results:
         ok, d, gain = significant(r, ref, min_gain)
-        if (c.name, c.component) == (cand.name, cand.component) or d - dbic >= ALT_DBIC:
+        if c.variant_of(cand) or d - dbic >= ALT_DBIC:
             continue
         if ok:
             alt = {"mechanism": c, "fit": res, "dbic": d, "gain": gain, "dbic_vs_chosen": d - dbic}

@@ -125,6 +125,11 @@ class Mechanism:
         however significant statistically): e.g. an offset below the sensor noise."""
         return False
 
+    def variant_of(self, other: "Mechanism") -> bool:
+        """The same mechanism on the same component (another form of it, or switched on or off
+        at other times): never an alternative explanation of the other."""
+        return (self.name, self.component) == (other.name, other.component)
+
     # ---- reporting ------------------------------------------------------------------------
     @property
     def label(self) -> str:

@@ -22,8 +22,9 @@ and which structure transfers (fixed candidate sets, fitted jointly without elim
 Two concealed effects at once (PAIRS in bench/diagnose_sweep.py: both named, nothing else):
     python bench/bench_diagnose.py --pairs 1,2,3 [--via-pcap]
 
-Robustness sweep alone, every case printed (--off-grid: at the magnitudes of OFF_GRID instead):
-    python bench/bench_diagnose.py --robustness 1,2,3,4,5,6,7,8 [CASE,CASE...] [--off-grid] [--via-pcap]
+Robustness sweep alone, every case printed (--off-grid: at the magnitudes of OFF_GRID instead;
+--random: each case once a seed, at a magnitude drawn from its family's range in RANDOM, signs drawn):
+    python bench/bench_diagnose.py --robustness 1,2,3,4,5,6,7,8 [CASE,CASE...] [--off-grid | --random] [--via-pcap]
                                    [--operation TRUTH.json]
 10 min closed-loop cases, the plant's coefficients off by up to +-4 % (calibration), one
 concealed mechanism of the catalogue (one to three magnitudes, small but significant) or none;
@@ -188,8 +189,11 @@ if __name__ == "__main__":
             operation, args = args[k + 1], args[:k] + args[k + 2:]
         if not args:
             sys.exit("bench_diagnose: --robustness needs SEEDS (--help lists the modes)")
-        rest = [a for a in args[1:] if a not in ("--off-grid", "--via-pcap")]
+        if "--off-grid" in args and "--random" in args:
+            sys.exit("bench_diagnose: --off-grid and --random are two sets of magnitudes: pick one")
+        rest = [a for a in args[1:] if a not in ("--off-grid", "--random", "--via-pcap")]
         sys.exit(robustness(_integers(args[0], "--robustness SEEDS"), rest[0].split(",") if rest else None,
-                            off_grid="--off-grid" in args, via_pcap="--via-pcap" in args, operation=operation))
+                            off_grid="--off-grid" in args, via_pcap="--via-pcap" in args, operation=operation,
+                            random="--random" in args))
     else:
         sys.exit(f"bench_diagnose: unknown arguments {' '.join(sys.argv[1:])!r} (--help lists the modes)")

@@ -88,6 +88,31 @@ OFF_GRID = {
     "clean": (0.0,),
 }
 OFF_GRID_KINDS = {"offset_L2": ("sensor_offset", "L2")}   # (mechanism, component) of cases SWEEP lacks
+# --random: each case at a magnitude drawn per seed from its family's range (low, high), both
+# signs where the effect has one (True): no draw is one any change was tuned on. A draw may fall
+# below the issue's bar (a flow-law exponent near 0.5, a sensor exponent near 1); the table counts
+# such a miss apart, as it does on the grid
+RANDOM = {
+    "leak_T1": (0.006, 0.010, False), "leak_T2": (0.006, 0.010, False), "leak_T3": (0.006, 0.012, False),
+    "leak_T3_out": (0.005, 0.010, False), "leak_T2_out": (0.006, 0.012, False), "leak_T1_out": (0.002, 0.005, False),
+    "offset_L1": (0.2, 0.4, True), "offset_L2": (0.2, 0.4, True), "offset_L3": (0.2, 0.4, True),
+    "offset_L4": (0.3, 0.6, True),
+    "deadtime_P1": (1.0, 2.5, False), "deadtime_V2": (2.0, 3.5, False), "head_P1": (0.02, 0.04, False),
+    "overflow_T1": (8.6, 9.2, False), "spill_T2": (0.04, 0.08, False),
+    "valve_V1": (1.3, 1.5, False), "valve_V2": (1.3, 1.6, False),
+    "saturation_L1": (8.6, 9.2, False), "saturation_L2": (7.5, 8.2, False), "saturation_L3": (6.5, 7.2, False),
+    "flowlaw_pipe23": (0.4, 0.7, False), "flowlaw_V2": (0.4, 0.7, False), "flowlaw_V1": (0.55, 0.65, False),
+    "sensorchar_L1": (0.85, 1.1, False), "sensorchar_L2": (0.85, 1.1, False), "sensorchar_L3": (0.9, 1.1, False),
+    "sensorchar_L4": (0.85, 0.9, False), "sensorquad_L2": (0.02, 0.03, False), "deadzone_P1": (0.03, 0.07, False),
+    "split_T1": (0.2, 0.8, False), "split_T2": (0.3, 0.7, False),
+    "closure_V2": (0.3, 0.55, False), "closure_P1": (0.2, 0.4, False),
+    "leakon_T3": (0.008, 0.012, False), "leakon_T1": (0.007, 0.010, False),
+    "spell_V2": (0.4, 0.55, False), "spell_P1": (0.3, 0.4, False), "repaired_T3": (0.008, 0.012, False),
+    "shift_L1": (0.15, 0.3, True), "shift_L3": (0.15, 0.3, True), "shift_L4": (0.4, 0.6, True),
+    "glitch_L1": (0.2, 0.3, True), "glitch_L3": (0.2, 0.3, True), "righted_L1": (0.2, 0.3, True),
+    "drift_L1": (0.0005, 0.001, True), "drift_L3": (0.0005, 0.001, True), "drift_L4": (0.001, 0.002, True),
+    "clean": (0.0, 0.0, False),
+}
 # Two concealed effects at once (sweep cases and magnitudes): session 20's ten pairs (a second
 # fault hidden by the first) and real-rig physics beside a fault. None needs a rim or a clip reached.
 PAIRS = (
@@ -364,17 +389,35 @@ def replay_change(plant, other, res) -> float:
                for s in plant.sensors if s.noise_sigma > 0)
 
 
+def random_magnitudes(seed: int) -> dict[str, float]:
+    """One draw of every RANDOM case's magnitude for `seed` (3 significant digits, as printed)."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed * 7919 + 31)
+    draws = {}
+    for case, (low, high, signed) in RANDOM.items():
+        mag = float(f"{rng.uniform(low, high):.3g}")
+        draws[case] = -mag if signed and rng.random() < 0.5 else mag
+    return draws
+
+
 def robustness(seeds: list[int], cases: list[str] | None = None, quiet: bool = False,
-               off_grid: bool = False, via_pcap: bool = False, operation: str | None = None) -> int:
-    """Every case of the sweep (or of OFF_GRID; or only `cases`) on each seed, printed one a
-    line (only misses when `quiet`), then the rates. `operation`: a truth.json whose setpoints and
-    tests every run follows instead of the supervisor's random ones (as the bundled cases ran)."""
+               off_grid: bool = False, via_pcap: bool = False, operation: str | None = None,
+               random: bool = False) -> int:
+    """Every case of the sweep (or of OFF_GRID, or of RANDOM at magnitudes drawn per seed; or only
+    `cases`) on each seed, printed one a line (only misses when `quiet`), then the rates.
+    `operation`: a truth.json whose setpoints and tests every run follows instead of the
+    supervisor's random ones (as the bundled cases ran)."""
     from collections import defaultdict
     from multiprocessing import Pool
 
-    grid = OFF_GRID if off_grid else {c: mags for c, (_, _, mags) in SWEEP.items()}
-    jobs = [(c, mag, s, via_pcap, operation)
-            for c, mags in grid.items() if not cases or c in cases for mag in mags for s in seeds]
+    if random:
+        jobs = [(c, mag, s, via_pcap, operation)
+                for s in seeds for c, mag in random_magnitudes(s).items() if not cases or c in cases]
+    else:
+        grid = OFF_GRID if off_grid else {c: mags for c, (_, _, mags) in SWEEP.items()}
+        jobs = [(c, mag, s, via_pcap, operation)
+                for c, mags in grid.items() if not cases or c in cases for mag in mags for s in seeds]
 
     rates = defaultdict(lambda: [0, 0, 0, 0])
     with Pool(int(os.environ.get("CIVIC_BENCH_PROCS", "2"))) as pool:

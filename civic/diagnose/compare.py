@@ -381,8 +381,12 @@ class EquationError:
             tk = model.tanks[i]
             rim = tk.rim_volume()
             pre = V[:-1, i] + F[:, i]
-            # at the rim every net inflow spills (measured noise is not rectified into spill)
-            s = np.where(at_rim[i], np.maximum(F[:, i], 0.0), np.maximum(pre - rim, 0.0))
+            # at the rim every net inflow spills (measured noise is not rectified into spill), and
+            # so does what a reading beyond the noise band above the rim loses on its way down to it
+            # (a record that starts with the tank above its rim: the datasheet spills it at once)
+            above = np.maximum(V[:, i] - rim - self.rim_tol[tk.name], 0.0)
+            s = np.where(at_rim[i], np.maximum(F[:, i], 0.0) + np.maximum(above[:-1] - above[1:], 0.0),
+                         np.maximum(pre - rim, 0.0))
             for dest, share in tk.overflow.targets():
                 move(tk.name, dest, share * s)
         return F, out

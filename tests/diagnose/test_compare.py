@@ -139,6 +139,25 @@ def test_spill_is_modelled_on_every_noisy_sample_at_the_rim(nominal, n):
     assert np.all(np.abs(z) < 5), z
 
 
+def test_a_record_that_starts_above_the_rim_spills_the_excess_at_once(nominal):
+    """A closed loop started at a setpoint above a tank's rim: its first reading is above the
+    rim, the next ones at it (the datasheet spills the excess at once). The equation error of
+    the true model must spill it too: kept in the tank, the first window's balance was 0.23 L off
+    on T1 and on T4, and a T1 leak until 80 s outranked the overflow that held T1 at its rim."""
+    true = nominal.copy()
+    true.tank("T1").overflow = Overflow(to="T4", volume=8.0)
+    n = 600
+    t = np.arange(n) * true.dt
+    u = {"p1": np.full(n, 0.9), "v1": np.full(n, 0.3), "v2": np.full(n, 0.4)}
+    sim = simulate(true, t, u, {"T1": 8.4, "T2": 6.0, "T3": 5.0, "T4": 20.6}, noise=True, seed=5)
+    rec = Recording(t, {k: sim[k] for k in true.signal_names + true.input_names}, {}, "above")
+    assert sim["L1"][0] > 8.3 and np.all(np.abs(sim["L1"][5:] - 8.0) < 0.1)
+    R = EquationError(true, rec).residuals(true)
+    sd = 0.05 * np.sqrt(2 / 5) * 1.5              # the noisier sensor's (L4) smoothed difference
+    assert np.all(np.abs(R[:2, :4]) < 3 * sd), R[:2]
+    assert abs(R[:, 4].mean()) < 0.01               # and every litre stays accounted for
+
+
 def test_level_error_spread_is_large_where_a_links_head_is_near_zero(nominal):
     """V1 open, T1 and T2 level for the first half of the record and 2 L apart for the second:
     a one-noise shift of a reading moves V1's Torricelli flow, and T1's balance, many times

@@ -358,10 +358,13 @@ class EquationError:
                 for i, p in enumerate(model.pumps) if p.from_ in tidx and p.min_source_volume > 0]
 
     def _at_rim(self, model: PlantModel, V: np.ndarray) -> dict:
-        """Per overflowing tank: the intervals that end with it at its rim (within the reading's
-        noise band, short dips closed)."""
-        return {i: closed_gaps(V[1:, i] >= model.tanks[i].rim_volume() - self.rim_tol[model.tanks[i].name], RIM_GAP)
-                for i in model._overflow_order()}
+        """Per overflowing tank: the intervals that end with it at its rim."""
+        return {i: self.reaching(model, V[1:], i, model.tanks[i].rim_volume()) for i in model._overflow_order()}
+
+    def reaching(self, model: PlantModel, V: np.ndarray, i: int, volume: float) -> np.ndarray:
+        """Per row of the volumes `V`: whether tank `i` is at or above `volume` (a rim, a crest),
+        within its reading's noise band, short dips below closed."""
+        return closed_gaps(V[:, i] >= volume - self.rim_tol[model.tanks[i].name], RIM_GAP)
 
     def _spill(self, model: PlantModel, V: np.ndarray, F: np.ndarray, out: np.ndarray, at_rim: dict):
         """The interval volume changes `F` and outside accumulation `out` with every overflow's

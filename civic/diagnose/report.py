@@ -76,6 +76,11 @@ def _finding_intervals(diag: Diagnosis, prev, res, mech=None) -> list[list[float
         eng.x0_extra = dict(res.x0_extra)
         vol = eng.simulate(res.model)["volumes"]
         return _mask_intervals(fitted.active_rows(res.model, vol), t, model.dt, gap)
+    if fitted.name == "overflow":
+        # every tank is measured: where its measured volume reaches the rim or crest
+        vol, _ = eng.volumes(res.model)
+        at = eng.reaching(res.model, vol, res.model.tank_names.index(fitted.component), fitted.onset_volume(res.model))
+        return _mask_intervals(at, t, model.dt, gap)
     prob_sigma = diag.sigma
     Rp = _resid(diag, prev) / prob_sigma
     Ra = _resid(diag, res) / prob_sigma

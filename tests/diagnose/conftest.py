@@ -73,6 +73,11 @@ def make_fault(nominal, name):
         m.find("pump", "P1").head_coeff = 0.04
     elif name == "overflow_T1":
         m.tank("T1").overflow = Overflow(to="T4", volume=9.0)
+    elif name == "overflow_T1_from_above":
+        # the random sweep's seed-501 plant: a T1 rim at 8.95 L, below seed 501's first setpoint
+        # (9.29 L), so the record starts with T1 above its rim, and the loop holds it there for 80 s
+        draw_calibration(m, nominal, (0.9761, 1.0149, 0.9945, 1.0052))
+        m.tank("T1").overflow = Overflow(to="T4", volume=8.95)
     elif name == "valve_V1":
         m.find("valve", "V1").characteristic = 1.5
     elif name == "saturation_L1":

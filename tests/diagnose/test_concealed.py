@@ -54,6 +54,22 @@ def test_concealed_fault_found(closed_loop_case, nominal, name, mech, comp, par,
     assert d.final.val_sse < 0.7 * d.base.val_sse
 
 
+def test_a_tank_that_starts_above_its_rim_is_named_an_overflow(closed_loop_case, nominal):
+    """The loop starts at a T1 setpoint above the rim (9.29 L on a rim at 8.95 L): the first
+    reading is above the rim, then T1 sits at it for 80 s. The equation error spills the excess
+    at once, as the datasheet does; kept in the tank, a T1 leak until 80 s was named instead.
+    The finding acts where T1 is at its rim."""
+    from civic.diagnose.report import build_report
+
+    rec = closed_loop_case("overflow_T1_from_above", seed=501)
+    assert rec.signals["L1"][0] > 9.2
+    d = diagnose(nominal, rec)
+    assert [(f["mechanism"].name, f["mechanism"].component) for f in d.findings] == [("overflow", "T1")]
+    assert abs(d.final_all.mechanisms[0].values()["volume"] - 8.95) < 0.05
+    (start, end), = build_report(d, rec)["findings"][0]["intervals"]
+    assert start < 1.0 and 75.0 < end < 90.0, (start, end)
+
+
 def test_two_concealed_effects_are_both_named(closed_loop_case, nominal):
     """A T1 leak and a 2 s dead time on V2 at once: both named (a later finding must hold on both
     block orders; a real second effect does)."""

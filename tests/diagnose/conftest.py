@@ -14,7 +14,8 @@ ROOT = Path(__file__).resolve().parents[2]
 PLANT = ROOT / "configs" / "plant.toml"
 DURATION = 600.0
 # case -> the bundled case whose operation it runs
-BUNDLED_OPERATION = {"flowlaw_V2_pinned": "example_none", "saturation_L1_held_at_clip": "example_none"}
+BUNDLED_OPERATION = {"flowlaw_V2_pinned": "example_none", "saturation_L1_held_at_clip": "example_none",
+                     "leak_T1_from300_in_fill_test": "example_leak_t3"}
 
 
 def real_plant(nominal):
@@ -48,6 +49,11 @@ def make_fault(nominal, name):
         m.links.append(Link("leak", from_="T1", to="T4", coeff=0.012, law="orifice"))
     elif name == "leak_T2":
         m.links.append(Link("leak", from_="T2", to="T4", coeff=0.010, law="orifice"))
+    elif name == "leak_T1_from300_in_fill_test":
+        # the random sweep's seed-507 plant: a small T1 leak opening at 300 s, as the bundled
+        # operation's fill test drains T1 with the pump off (from 298.6 s)
+        draw_calibration(m, nominal, (1.0037, 0.975, 1.016, 0.9654))
+        m.links.append(Link("leak", from_="T1", to="T4", coeff=0.00711, since=300.0))
     elif name == "leak_T3_from300":
         m.links.append(Link("leak", from_="T3", to="T4", coeff=0.012, since=300.0))
     elif name == "leak_T1_small_out":

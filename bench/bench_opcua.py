@@ -111,6 +111,12 @@ def server_start_s(repeats: int = 3) -> float:
 
 
 def main() -> None:
+    # civic monitor is stopped with SIGINT, a user's Ctrl-C. A bench started in the background of
+    # a non-interactive shell ignores SIGINT and its children inherit that: the monitor then ran
+    # on and the run failed after 30 s (as tests/conftest.py says for the tests). A handled
+    # signal is reset to the default in a child.
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     why = veth.why_not()
     if why:
         print(f"civic monitor --opcua: skipped ({why})")

@@ -58,6 +58,10 @@ def _redate_one(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], i: int, 
                 sse_at[float(t)] = prob.fit(mechs[:i] + [m.with_fixed(**{key: float(t)})] + mechs[i + 1:],
                                             rows=rows, start_cal=start.cal, start_x0=start.x0_extra).train_sse
 
+    def table() -> tuple[np.ndarray, np.ndarray]:
+        grid = np.array(sorted(sse_at))
+        return grid, np.array([sse_at[t] for t in grid])
+
     a, b = lo - REDATE_REACH, hi + REDATE_REACH
     profile(a, b)
     while len(sse_at) >= 2:
@@ -65,7 +69,7 @@ def _redate_one(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], i: int, 
         # there: reach further. A T1 leak opening at 300 s as a fill test drained T1 was stepped at
         # 365 s (bracket 340-390 s) by the change point, the calibration's pump gain hiding it
         # while the pump refilled; the profile was flat down to 310 s, the reach's end.
-        grid, sse = np.array(sorted(sse_at)), np.array([sse_at[t] for t in sorted(sse_at)])
+        grid, sse = table()
         near = grid[sse <= sse.min() + ONSET_LR]
         more_lo = near[0] <= a + width and allowed[allowed < a].size > 0
         more_hi = near[-1] >= b - width and allowed[allowed > b].size > 0
@@ -75,7 +79,7 @@ def _redate_one(prob: Problem, diag: Diagnosis, mechs: list[Mechanism], i: int, 
         profile(a, b)
     if len(sse_at) < 2:
         return m
-    grid, sse = np.array(sorted(sse_at)), np.array([sse_at[t] for t in sorted(sse_at)])
+    grid, sse = table()
     best = float(grid[int(np.argmin(sse))])
     near = grid[sse <= sse.min() + ONSET_LR]
     grown = {lo_key: min(lo, float(near[0]) - width), hi_key: max(hi, float(near[-1]) + width)}
